@@ -1,0 +1,2 @@
+def main():
+    """Stand-in until the CLI lands."""

@@ -1,0 +1,1 @@
+"""Core numerics, simulation and tracking: numpy/scipy/OpenCV only, never rclpy."""

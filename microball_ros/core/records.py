@@ -1,0 +1,121 @@
+"""Position records: the CSV contract of DESIGN.md section 5, read strictly and written plainly.
+
+A position CSV has the header ``time,stator_position,slider_position`` (s, m, m); extra columns
+are kept but not needed. An empty cell means "no measurement" (a lost mark in a tracked video);
+the literal text ``nan`` or any other non-number is an error, so a broken file is never mistaken
+for a tracked one.
+"""
+
+import csv
+from dataclasses import dataclass, field
+import os
+
+import numpy as np
+
+REQUIRED_COLUMNS = ('time', 'stator_position', 'slider_position')
+
+
+class RecordError(ValueError):
+    """A position record that cannot be analysed; the message is one line for the user."""
+
+
+@dataclass(frozen=True)
+class PositionRecord:
+    """Sampled stator and slider positions on a uniform time base.
+
+    ``valid`` marks the samples where both positions were measured; ``extra`` holds any other
+    numeric columns of the source (for example ground truth from ``microball simulate``).
+    """
+
+    time: np.ndarray
+    stator_position: np.ndarray
+    slider_position: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def valid(self):
+        """Return a boolean mask of the samples where both marks were measured."""
+        return np.isfinite(self.stator_position) & np.isfinite(self.slider_position)
+
+    @property
+    def sample_period(self):
+        """Return the median sample period, s."""
+        return float(np.median(np.diff(self.time)))
+
+
+def _parse_cell(text, row_number, column):
+    text = text.strip()
+    if text == '':
+        return np.nan
+    try:
+        value = float(text)
+    except ValueError:
+        raise RecordError(f'row {row_number}, column {column!r}: {text!r} is not a number')
+    if not np.isfinite(value):
+        raise RecordError(f'row {row_number}, column {column!r}: {text!r} is not a finite number')
+    return value
+
+
+def read_positions_csv(path):
+    """Read a position CSV into a PositionRecord, raising RecordError on anything malformed."""
+    if not os.path.isfile(path):
+        raise RecordError(f'{path}: no such file')
+    with open(path, newline='') as handle:
+        reader = csv.reader(handle)
+        header = [name.strip() for name in next(reader, [])]
+        missing = [name for name in REQUIRED_COLUMNS if name not in header]
+        if missing:
+            raise RecordError(f'{path}: missing column(s) {", ".join(missing)} '
+                              f'(need a header {",".join(REQUIRED_COLUMNS)})')
+        rows = []
+        for row_number, row in enumerate(reader, start=2):
+            if not row or all(cell.strip() == '' for cell in row):
+                continue
+            if len(row) != len(header):
+                raise RecordError(f'{path}: row {row_number} has {len(row)} cells, '
+                                  f'the header has {len(header)}')
+            rows.append([_parse_cell(cell, row_number, name) for cell, name in zip(row, header)])
+    if not rows:
+        raise RecordError(f'{path}: no data rows')
+    data = np.array(rows, dtype=float)
+    columns = {name: data[:, k] for k, name in enumerate(header)}
+    if np.isnan(columns['time']).any():
+        row = int(np.flatnonzero(np.isnan(columns['time']))[0]) + 2
+        raise RecordError(f'{path}: row {row} has no time stamp')
+    record = PositionRecord(
+        time=columns.pop('time'), stator_position=columns.pop('stator_position'),
+        slider_position=columns.pop('slider_position'), extra=columns)
+    check_time_base(record.time, source=path)
+    return record
+
+
+def check_time_base(time, source='record', tolerance=0.01):
+    """Check that time stamps increase uniformly (within tolerance of the median period)."""
+    if len(time) < 3:
+        raise RecordError(f'{source}: only {len(time)} samples')
+    steps = np.diff(time)
+    if np.any(steps <= 0):
+        k = int(np.flatnonzero(steps <= 0)[0])
+        kind = 'duplicated' if steps[k] == 0 else 'decreasing'
+        raise RecordError(f'{source}: {kind} time stamp {time[k + 1]!r} after {time[k]!r}')
+    period = np.median(steps)
+    worst = int(np.argmax(np.abs(steps - period)))
+    if abs(steps[worst] - period) > tolerance * period:
+        raise RecordError(f'{source}: non-uniform sampling: step {steps[worst]:.6g} s after '
+                          f't = {time[worst]:.6g} s, median step {period:.6g} s')
+
+
+def write_positions_csv(path, columns):
+    """Write an ordered mapping of column name -> array to a CSV; NaN becomes an empty cell."""
+    names = list(columns)
+    missing = [name for name in REQUIRED_COLUMNS if name not in names]
+    if missing:
+        raise ValueError(f'cannot write a position CSV without {", ".join(missing)}')
+    directory = os.path.dirname(os.path.abspath(path))
+    os.makedirs(directory, exist_ok=True)
+    arrays = [np.asarray(columns[name], dtype=float) for name in names]
+    with open(path, 'w', newline='') as handle:
+        writer = csv.writer(handle)
+        writer.writerow(names)
+        for values in zip(*arrays):
+            writer.writerow(['' if np.isnan(v) else repr(float(v)) for v in values])

@@ -1,0 +1,30 @@
+"""ament_python package microball_ros (pip installs it too: `pip install -e .`)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'microball_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test', 'test.*']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/msg_defs/msg', glob('msg_defs/msg/*.msg')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='microball_ros developers',
+    maintainer_email='microball@example.org',
+    description='Measure and model friction in MEMS microball bearings on ROS 2.',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'microball = microball_ros.cli:main',
+        ],
+    },
+)
