@@ -1,2 +1,140 @@
-def main():
-    """Stand-in until the CLI lands."""
+"""The ``microball`` command line (contract: DESIGN.md section 5).
+
+Every sub-command validates its input and fails with one line on stderr and a non-zero exit
+(2 for bad input, 130 for Ctrl-C), never a traceback. The work itself lives in the core and in
+the other modules; this file only parses arguments and prints.
+"""
+
+import argparse
+import json
+import os
+import sys
+
+from microball_ros.core.records import RecordError
+
+EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+
+
+class CliError(Exception):
+    """Bad input detected by the CLI itself; the message is shown as one line."""
+
+
+def _positive_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number')
+    if not value > 0 or value == float('inf'):
+        raise argparse.ArgumentTypeError(f'{text!r} must be a positive finite number')
+    return value
+
+
+def _fraction(text):
+    value = _positive_float(text)
+    if value >= 1:
+        raise argparse.ArgumentTypeError(f'{text!r} must be between 0 and 1')
+    return value
+
+
+def _progress(message):
+    print(message, file=sys.stderr, flush=True)
+
+
+def cmd_simulate(args):
+    """Simulate the bench (no camera) and write its positions and ground truth to CSV."""
+    from microball_ros.core import bench
+    from microball_ros.core.records import write_positions_csv
+
+    scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
+                                                    if args.seed is not None else {}))
+    _progress(f'simulating {args.duration:g} s of scenario {args.scenario!r} ...')
+    record = bench.simulate(scenario, args.duration)
+    columns = record.to_columns()
+    if not args.ground_truth:
+        columns = {k: v for k, v in columns.items() if not k.startswith('true_')}
+    write_positions_csv(args.output, columns)
+    print(f'wrote {len(record.time)} samples at {scenario.frame_rate:g} fps to {args.output}')
+    return 0
+
+
+def cmd_analyze(args):
+    """Analyse positions: derivatives, memory test, Langevin fit, validation."""
+    from microball_ros.analysis import analyze_record, load_positions, summary_lines
+
+    record = load_positions(args.input)
+    _progress(f'analysing {len(record.time)} samples from {args.input} ({args.method}) ...')
+    result = analyze_record(record, method=args.method, epsilon=args.epsilon)
+    for line in summary_lines(result):
+        print(line)
+    if args.json:
+        directory = os.path.dirname(os.path.abspath(args.json))
+        os.makedirs(directory, exist_ok=True)
+        with open(args.json, 'w') as handle:
+            json.dump(result.to_json(), handle, indent=2, allow_nan=False, sort_keys=True)
+            handle.write('\n')
+        print(f'wrote {args.json}')
+    if args.report:
+        from microball_ros.report import write_report
+
+        _progress(f'drawing figures into {args.report} ...')
+        for path in write_report(result, record, args.report):
+            print(f'wrote {path}')
+    return 0
+
+
+def build_parser():
+    """Build the argument parser of every sub-command."""
+    parser = argparse.ArgumentParser(
+        prog='microball',
+        description='Measure and model dynamic friction in MEMS microball bearings '
+                    '(Tan, Modafe and Ghodssi, ACC 2005) on ROS 2.')
+    commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
+
+    simulate = commands.add_parser(
+        'simulate', help='positions from the bench model, no camera',
+        description='Simulate the crank-slider rig and write stator and slider positions.')
+    simulate.add_argument('--scenario', default='paper',
+                          help='scenario preset (default: paper; see --list-scenarios)')
+    simulate.add_argument('--duration', type=_positive_float, default=20.0,
+                          help='seconds of steady oscillation to record (default: 20)')
+    simulate.add_argument('--output', required=True, help='position CSV to write')
+    simulate.add_argument('--seed', type=int, default=None, help='noise seed (default: preset)')
+    simulate.add_argument('--no-ground-truth', dest='ground_truth', action='store_false',
+                          help='omit the true_* columns')
+    simulate.set_defaults(func=cmd_simulate)
+
+    analyze = commands.add_parser(
+        'analyze', help='three-stage estimation, memory test and friction fit',
+        description='Analyse a position CSV: velocity and acceleration, memory test, '
+                    'Langevin friction model and its validation by simulation.')
+    analyze.add_argument('input', help='position CSV (time,stator_position,slider_position)')
+    analyze.add_argument('--epsilon', type=_fraction, default=0.02,
+                         help='amplitude-filter threshold, fraction of the largest FFT '
+                              'component (default: 0.02)')
+    analyze.add_argument('--method', default='three-stage',
+                         choices=['three-stage', 'forward', 'lowpass-forward'],
+                         help='derivative estimator (default: three-stage)')
+    analyze.add_argument('--json', help='write the results as JSON to this file')
+    analyze.add_argument('--report', help='write figures and estimates.csv into this folder')
+    analyze.set_defaults(func=cmd_analyze)
+    return parser
+
+
+def main(argv=None):
+    """Run the microball command line; return the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except (CliError, RecordError, ValueError, OSError) as error:
+        message = ' '.join(str(error).split()) or type(error).__name__
+        print(f'microball {args.command}: error: {message}', file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f'microball {args.command}: interrupted', file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == '__main__':
+    sys.exit(main())

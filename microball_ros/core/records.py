@@ -97,7 +97,7 @@ def check_time_base(time, source='record', tolerance=0.01):
     if np.any(steps <= 0):
         k = int(np.flatnonzero(steps <= 0)[0])
         kind = 'duplicated' if steps[k] == 0 else 'decreasing'
-        raise RecordError(f'{source}: {kind} time stamp {time[k + 1]!r} after {time[k]!r}')
+        raise RecordError(f'{source}: {kind} time stamp {time[k + 1]:.6g} after {time[k]:.6g}')
     period = np.median(steps)
     worst = int(np.argmax(np.abs(steps - period)))
     if abs(steps[worst] - period) > tolerance * period:
