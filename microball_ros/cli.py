@@ -24,16 +24,19 @@ def _positive_float(text):
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number')
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
     if not value > 0 or value == float('inf'):
         raise argparse.ArgumentTypeError(f'{text!r} must be a positive finite number')
     return value
 
 
 def _fraction(text):
-    value = _positive_float(text)
-    if value >= 1:
-        raise argparse.ArgumentTypeError(f'{text!r} must be between 0 and 1')
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f'{text!r} must be in [0, 1)')
     return value
 
 
@@ -64,7 +67,8 @@ def cmd_analyze(args):
 
     record = load_positions(args.input)
     _progress(f'analysing {len(record.time)} samples from {args.input} ({args.method}) ...')
-    result = analyze_record(record, method=args.method, epsilon=args.epsilon)
+    result = analyze_record(record, method=args.method, epsilon=args.epsilon,
+                            fit_epsilon=args.fit_epsilon, source=args.input)
     for line in summary_lines(result):
         print(line)
     if args.json:
@@ -112,6 +116,9 @@ def build_parser():
     analyze.add_argument('--epsilon', type=_fraction, default=0.02,
                          help='amplitude-filter threshold, fraction of the largest FFT '
                               'component (default: 0.02)')
+    analyze.add_argument('--fit-epsilon', type=_fraction, default=0.0,
+                         help='amplitude-filter threshold of the estimates the Langevin model '
+                              'is fitted to (three-stage only; default: 0, see README)')
     analyze.add_argument('--method', default='three-stage',
                          choices=['three-stage', 'forward', 'lowpass-forward'],
                          help='derivative estimator (default: three-stage)')

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from microball_ros.core.records import read_positions_csv, RecordError, write_positions_csv
+from microball_ros.core.records import RecordError, read_positions_csv, write_positions_csv
 
 
 def _write(tmp_path, text):

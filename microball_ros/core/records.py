@@ -50,7 +50,8 @@ def _parse_cell(text, row_number, column):
     try:
         value = float(text)
     except ValueError:
-        raise RecordError(f'row {row_number}, column {column!r}: {text!r} is not a number')
+        message = f'row {row_number}, column {column!r}: {text!r} is not a number'
+        raise RecordError(message) from None
     if not np.isfinite(value):
         raise RecordError(f'row {row_number}, column {column!r}: {text!r} is not a finite number')
     return value
@@ -74,7 +75,8 @@ def read_positions_csv(path):
             if len(row) != len(header):
                 raise RecordError(f'{path}: row {row_number} has {len(row)} cells, '
                                   f'the header has {len(header)}')
-            rows.append([_parse_cell(cell, row_number, name) for cell, name in zip(row, header)])
+            rows.append([_parse_cell(cell, row_number, name)
+                         for cell, name in zip(row, header, strict=True)])
     if not rows:
         raise RecordError(f'{path}: no data rows')
     data = np.array(rows, dtype=float)
@@ -117,5 +119,5 @@ def write_positions_csv(path, columns):
     with open(path, 'w', newline='') as handle:
         writer = csv.writer(handle)
         writer.writerow(names)
-        for values in zip(*arrays):
+        for values in zip(*arrays, strict=True):
             writer.writerow(['' if np.isnan(v) else repr(float(v)) for v in values])
