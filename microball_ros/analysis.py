@@ -28,9 +28,7 @@ class AnalysisResult:
     fit_epsilon: object  # float for the three-stage method, else None
     sample_period: float
     fundamental_frequency: float
-    window_start: float
-    window_end: float
-    samples_used: int
+    window: PositionRecord  # the analysed stretch: the longest run of valid samples
     samples_invalid: int
     estimate: estimation.Estimate
     memory: estimation.MemoryTest
@@ -50,8 +48,8 @@ class AnalysisResult:
             'epsilon': self.epsilon,
             'sample_period': self.sample_period,
             'fundamental_frequency': self.fundamental_frequency,
-            'window': {'start': self.window_start, 'end': self.window_end,
-                       'samples_used': self.samples_used,
+            'window': {'start': float(self.window.time[0]), 'end': float(self.window.time[-1]),
+                       'samples_used': len(self.window.time),
                        'samples_invalid': self.samples_invalid},
             'phase_difference': self.memory.phase_difference,
             'phase_uncertainty': self.memory.uncertainty,
@@ -110,12 +108,14 @@ def longest_valid_run(valid):
 
 
 def _steady_window(record, source):
-    """Return the longest stretch of samples where both marks were measured."""
+    """Return the longest stretch of the record where both marks were measured."""
     start, stop = longest_valid_run(record.valid)
     if stop - start < 3:
         raise RecordError(f'{source}: no stretch of valid samples (both marks measured)')
     span = slice(start, stop)
-    return start, stop, record.time[span], record.stator_position[span], record.slider_position[span]
+    return PositionRecord(time=record.time[span], stator_position=record.stator_position[span],
+                          slider_position=record.slider_position[span],
+                          extra={name: column[span] for name, column in record.extra.items()})
 
 
 def _check_oscillation(time, stator, dt, source):
@@ -150,7 +150,8 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
     """
     if method not in METHODS:
         raise RecordError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
-    start, stop, time, stator, slider = _steady_window(record, source)
+    window = _steady_window(record, source)
+    time, stator, slider = window.time, window.stator_position, window.slider_position
     dt = float(np.median(np.diff(time)))
     frequency = _check_oscillation(time, stator, dt, source)
     options = {'epsilon': epsilon} if method == 'three-stage' else {}
@@ -166,8 +167,7 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
     return AnalysisResult(
         source=source, method=method, epsilon=float(epsilon),
         fit_epsilon=float(fit_epsilon) if method == 'three-stage' else None, sample_period=dt,
-        fundamental_frequency=float(frequency), window_start=float(time[0]),
-        window_end=float(time[-1]), samples_used=int(stop - start),
+        fundamental_frequency=float(frequency), window=window,
         samples_invalid=int(np.count_nonzero(~record.valid)), estimate=est, memory=memory,
         fit=fit, comparison=comparison, validation=validation)
 
@@ -184,7 +184,7 @@ def summary_lines(result):
     return [
         f'method {result.method}, sample period {result.sample_period * 1e3:.2f} ms, '
         f'fundamental {result.fundamental_frequency:.4f} Hz, '
-        f'{result.samples_used} samples ({result.samples_invalid} invalid)',
+        f'{len(result.window.time)} samples used ({result.samples_invalid} invalid)',
         f'phase difference a_slider vs v_rel: {result.memory.phase_difference:.4f} '
         f'+- {result.memory.uncertainty:.4f} rad (pi = 3.1416): {verdict}',
         f"Langevin model: A = {model['A']:.4g} m/s^2 {interval(model['A_ci95'])}, "

@@ -82,7 +82,7 @@ def cmd_analyze(args):
         from microball_ros.report import write_report
 
         _progress(f'drawing figures into {args.report} ...')
-        for path in write_report(result, record, args.report):
+        for path in write_report(result, args.report):
             print(f'wrote {path}')
     return 0
 

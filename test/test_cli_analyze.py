@@ -1,0 +1,156 @@
+"""`microball simulate` and `microball analyze` end to end: the paper's results, the JSON contract,
+the report, and one-line errors on bad input.
+"""
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from microball_ros.cli import main
+
+CONTRACT_KEYS = {'sample_period', 'fundamental_frequency', 'phase_difference',
+                 'phase_uncertainty', 'memoryless', 'model', 'validation'}
+MODEL_KEYS = {'name', 'A', 'alpha', 'A_ci95', 'alpha_ci95', 'rmse'}
+VALIDATION_KEYS = {'slider_amplitude_simulated', 'slider_amplitude_measured', 'phase_simulated',
+                   'phase_measured'}
+
+
+def _run(*argv):
+    """Run the CLI as a user does, in a separate process."""
+    return subprocess.run([sys.executable, '-m', 'microball_ros.cli', *argv],
+                          capture_output=True, text=True, timeout=300)
+
+
+def _analysis(tmp_path_factory, scenario, *extra):
+    folder = tmp_path_factory.mktemp(scenario)
+    csv_path, json_path = str(folder / 'positions.csv'), str(folder / 'analysis.json')
+    assert main(['simulate', '--scenario', scenario, '--duration', '40',
+                 '--output', csv_path]) == 0
+    assert main(['analyze', csv_path, '--json', json_path, *extra]) == 0
+    with open(json_path) as handle:
+        return folder, json.load(handle)
+
+
+@pytest.fixture(scope='module')
+def paper(tmp_path_factory):
+    return _analysis(tmp_path_factory, 'paper', '--report', 'REPORT')
+
+
+def _inside(value, interval):
+    low, high = interval
+    return low <= value and (high is None or value <= high)
+
+
+def test_paper_scenario_is_memoryless_with_the_true_slope_inside_its_intervals(paper):
+    _, result = paper
+    assert CONTRACT_KEYS <= set(result)
+    assert MODEL_KEYS <= set(result['model'])
+    assert VALIDATION_KEYS <= set(result['validation'])
+    assert result['sample_period'] == pytest.approx(1 / 30, rel=1e-9)
+    assert result['fundamental_frequency'] == pytest.approx(2.95, rel=1e-4)
+    assert 0 <= result['phase_difference'] <= math.pi
+    assert result['memoryless'] is True
+    model = result['model']
+    assert model['name'] == 'langevin'
+    assert model['A'] * model['alpha'] / 3 == pytest.approx(1.2 * 110 / 3, rel=0.10)
+    assert _inside(1.2, model['A_ci95'])
+    assert _inside(110.0, model['alpha_ci95'])
+    # The paper regime barely bends the curve: A and alpha trade off (honestly reported).
+    assert abs(model['A_alpha_correlation']) > 0.9
+    validation = result['validation']
+    assert validation['slider_amplitude_simulated'] == pytest.approx(
+        validation['slider_amplitude_measured'], rel=0.02)
+    assert validation['phase_simulated'] == pytest.approx(validation['phase_measured'], abs=0.03)
+
+
+def test_report_writes_estimates_and_figures(paper, tmp_path):
+    folder, result = paper
+    report = tmp_path / 'report'
+    assert main(['analyze', str(folder / 'positions.csv'), '--report', str(report)]) == 0
+    lines = (report / 'estimates.csv').read_text().splitlines()
+    assert lines[0] == 'time,relative_velocity,slider_acceleration'
+    rows = np.array([[float(v) for v in line.split(',')] for line in lines[1:]])
+    assert rows.shape[0] == result['model']['sample_count']
+    assert np.all(np.diff(rows[:, 0]) == pytest.approx(1 / 30))
+    assert np.abs(rows[:, 1]).max() == pytest.approx(0.009, rel=0.1)
+    for name in ('positions.png', 'methods.png', 'model.png', 'compensation.png'):
+        assert (report / name).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_saturating_scenario_identifies_A_and_alpha(tmp_path_factory):
+    _, result = _analysis(tmp_path_factory, 'saturating')
+    assert result['memoryless'] is True
+    assert result['model']['A'] == pytest.approx(1.2, rel=0.10)
+    assert result['model']['alpha'] == pytest.approx(110.0, rel=0.10)
+
+
+@pytest.mark.parametrize('scenario', ['lugre', 'lagged'])
+def test_friction_with_memory_is_called_hysteretic(tmp_path_factory, scenario):
+    _, result = _analysis(tmp_path_factory, scenario)
+    assert result['memoryless'] is False
+    assert math.pi - result['phase_difference'] > 0.2
+
+
+def test_forward_differences_show_the_papers_spurious_phase(paper, tmp_path):
+    folder, _ = paper
+    json_path = tmp_path / 'forward.json'
+    assert main(['analyze', str(folder / 'positions.csv'), '--method', 'forward',
+                 '--json', str(json_path)]) == 0
+    result = json.loads(json_path.read_text())
+    omega_dt = 2 * math.pi * 2.95 / 30
+    assert result['phase_difference'] == pytest.approx(math.pi - omega_dt / 2, abs=0.02)
+    assert result['memoryless'] is False
+
+
+def _csv(tmp_path, header, rows):
+    path = tmp_path / 'bad.csv'
+    path.write_text(header + '\n' + '\n'.join(','.join(map(str, r)) for r in rows) + '\n')
+    return str(path)
+
+
+def _sine_rows(n, frequency=2.95, dt=1 / 30):
+    t = np.arange(n) * dt
+    return [(ti, 1e-3 * math.sin(2 * math.pi * frequency * ti),
+             0.9e-3 * math.sin(2 * math.pi * frequency * ti - 0.4)) for ti in t]
+
+
+HEADER = 'time,stator_position,slider_position'
+
+
+@pytest.mark.parametrize('make, message', [
+    (lambda p: str(p / 'absent.csv'), 'no such file'),
+    (lambda p: _csv(p, 'time,stator_position', [(0, 1)] * 5), 'missing column'),
+    (lambda p: _csv(p, HEADER, [(0, 1, 2), (0.1, 'x', 2), (0.2, 1, 2)]), 'is not a number'),
+    (lambda p: _csv(p, HEADER, [(0, 1, 2), (0.1, 'nan', 2), (0.2, 1, 2)]), 'not a finite'),
+    (lambda p: _csv(p, HEADER, [(0, 1, 2), (0, 1, 2), (0.1, 1, 2)]), 'duplicated time stamp'),
+    (lambda p: _csv(p, HEADER, [(0, 1, 2), (0.1, 1, 2), (0.3, 1, 2), (0.4, 1, 2)]),
+     'non-uniform sampling'),
+    (lambda p: _csv(p, HEADER, _sine_rows(30)), 'too short'),
+    (lambda p: _csv(p, HEADER, [(k / 30, 0.0, 0.0) for k in range(600)]), 'does not move'),
+    (lambda p: _csv(p, HEADER, [(k / 30, v, v) for k, v in enumerate(
+        np.random.default_rng(0).normal(0, 1e-6, 600))]), 'no oscillation'),
+])
+def test_bad_input_gives_one_line_and_exit_2(tmp_path, make, message):
+    result = _run('analyze', make(tmp_path))
+    assert result.returncode == 2
+    assert result.stdout == ''
+    lines = result.stderr.strip().splitlines()
+    errors = [line for line in lines if not line.startswith('analysing ')]
+    assert len(errors) == 1, result.stderr
+    assert errors[0].startswith('microball analyze: error: ') and message in errors[0]
+
+
+def test_every_command_has_help():
+    for command in ('simulate', 'analyze'):
+        result = _run(command, '--help')
+        assert result.returncode == 0 and 'usage: microball' in result.stdout
+
+
+def test_unknown_scenario_is_a_one_line_error(tmp_path):
+    result = _run('simulate', '--scenario', 'nope', '--output', str(tmp_path / 'x.csv'))
+    assert result.returncode == 2
+    assert 'paper' in result.stderr and 'Traceback' not in result.stderr
