@@ -1,5 +1,6 @@
-"""`microball simulate` and `microball analyze` end to end: the paper's results, the JSON contract,
-the report, and one-line errors on bad input.
+"""`microball simulate` and `microball analyze` end to end.
+
+The paper's results, the JSON contract, the report, and one-line errors on bad input.
 """
 
 import json
