@@ -1,0 +1,84 @@
+"""Messages <-> numpy: the only module that knows both microball_msgs and the core types."""
+
+import math
+
+from builtin_interfaces.msg import Time
+from microball_msgs.msg import DerivativeEstimate, FrictionModel, TrackedPositions
+import numpy as np
+
+
+def stamp_to_seconds(stamp):
+    """Return a builtin_interfaces/Time as float seconds."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def seconds_to_stamp(seconds):
+    """Return float seconds (>= 0) as a builtin_interfaces/Time, rounded to the nanosecond."""
+    nanoseconds = int(round(seconds * 1e9))
+    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def tracked_positions(stamp, frame_index, slider, stator, slider_quality, stator_quality,
+                      frame_id='camera'):
+    """Build a TrackedPositions message; a NaN position is marked invalid."""
+    msg = TrackedPositions()
+    msg.header.stamp = stamp if isinstance(stamp, Time) else seconds_to_stamp(stamp)
+    msg.header.frame_id = frame_id
+    msg.frame_index = int(frame_index)
+    msg.slider_position = float(slider)
+    msg.stator_position = float(stator)
+    msg.slider_quality = float(slider_quality)
+    msg.stator_quality = float(stator_quality)
+    msg.slider_valid = bool(np.isfinite(slider))
+    msg.stator_valid = bool(np.isfinite(stator))
+    return msg
+
+
+def derivative_estimate(header, window, est, memory, epsilon):
+    """Build a DerivativeEstimate from a core Window, Estimate and MemoryTest."""
+    msg = DerivativeEstimate()
+    msg.header = header
+    msg.method = est.method
+    msg.sample_period = float(est.sample_period)
+    msg.fundamental_frequency = float(memory.frequency)
+    msg.time = est.time.astype(float).tolist()
+    msg.stator_position = window.stator_position[est.index].astype(float).tolist()
+    msg.slider_position = window.slider_position[est.index].astype(float).tolist()
+    msg.relative_velocity = est.velocity.astype(float).tolist()
+    msg.slider_acceleration = est.acceleration.astype(float).tolist()
+    msg.phase_difference = float(memory.phase_difference)
+    msg.phase_uncertainty = float(memory.uncertainty)
+    msg.memoryless = bool(memory.memoryless)
+    msg.epsilon = float(epsilon)
+    msg.kept_frequencies = np.asarray(est.acceleration_frequencies, dtype=float).tolist()
+    msg.sample_count = len(window.time)
+    msg.invalid_count = 0
+    return msg
+
+
+def estimate_arrays(msg):
+    """Return (time, relative_velocity, slider_acceleration, stator, slider) arrays."""
+    return tuple(np.asarray(values, dtype=float) for values in (
+        msg.time, msg.relative_velocity, msg.slider_acceleration, msg.stator_position,
+        msg.slider_position))
+
+
+def friction_model(header, fit, validation, window_count):
+    """Build a FrictionModel from a Langevin FitResult and a ValidationResult."""
+    msg = FrictionModel()
+    msg.header = header
+    msg.name = fit.name
+    msg.a = float(fit.params['A'])
+    msg.alpha = float(fit.params['alpha'])
+    msg.a_ci95 = [float(b) for b in fit.ci95['A']]
+    msg.alpha_ci95 = [float(b) for b in fit.ci95['alpha']]
+    correlation = float(fit.correlation[0, 1])
+    msg.a_alpha_correlation = correlation if math.isfinite(correlation) else math.nan
+    msg.rmse = float(fit.rmse)
+    msg.sample_count = int(fit.n)
+    msg.window_count = int(window_count)
+    msg.slider_amplitude_simulated = float(validation.slider_amplitude_simulated)
+    msg.slider_amplitude_measured = float(validation.slider_amplitude_measured)
+    msg.phase_simulated = float(validation.phase_simulated)
+    msg.phase_measured = float(validation.phase_measured)
+    return msg

@@ -1,0 +1,1 @@
+"""rclpy nodes: thin wrappers msg -> arrays -> core -> msg, one console script each."""

@@ -1,0 +1,110 @@
+"""three_stage_estimator: /tracking/positions -> /estimation/derivatives, one message a window.
+
+Windows are whole numbers of stator periods (core.windowing); each gets velocity and
+acceleration by the chosen method (three-stage by default) and the memory test
+(core.estimation.relative_memory_test). Invalid samples and frame gaps are never filled in: the
+stretch around them is skipped with a logged reason.
+"""
+
+from microball_msgs.msg import DerivativeEstimate, TrackedPositions
+from rclpy.node import Node
+from std_msgs.msg import Header
+
+from microball_ros import conversions
+from microball_ros.core import estimation
+from microball_ros.core.windowing import PositionWindower, Skip, WindowSettings
+from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
+from microball_ros.nodes.worker import OrderedWorker
+
+PARAMS = {
+    'method': Param('three-stage', 'derivative estimator: ' + ', '.join(estimation.METHODS)),
+    'epsilon': Param(0.0, 'three-stage amplitude-filter threshold (fraction of the largest '
+                          'component) of the published estimates; 0 keeps every component, '
+                          'which the friction fit needs (the filter removes the friction '
+                          "law's small harmonics); the paper used 0.02-0.18", 0.0, 0.99),
+    'window_periods': Param(8.0, 'analysis window, stator periods', 4.0, 1000.0),
+    'hop_periods': Param(4.0, 'advance between windows, stator periods', 0.1, 1000.0),
+    'min_amplitude': Param(1e-5, 'stator amplitude below which a window is skipped, m',
+                           0.0, 1.0),
+    'frequency_tolerance': Param(0.02, 'relative frequency change that starts a new window',
+                                 0.001, 0.5),
+    'memory_k': Param(3.0, 'memory test: sigmas of phase uncertainty allowed', 0.0, 100.0),
+    'memory_margin': Param(0.1, 'memory test: bias margin around pi, rad', 0.0, 3.1416),
+}
+
+
+def check_parameters(values):
+    """Return None if the parameter values are consistent, else a one-line reason."""
+    if values['method'] not in estimation.METHODS:
+        known = ', '.join(estimation.METHODS)
+        return f"unknown method {values['method']!r}; choose one of {known}"
+    return _settings(values).check()
+
+
+def _settings(values):
+    return WindowSettings(window_periods=values['window_periods'],
+                          hop_periods=values['hop_periods'],
+                          min_amplitude=values['min_amplitude'],
+                          frequency_tolerance=values['frequency_tolerance'])
+
+
+class ThreeStageEstimator(Node):
+    """Estimate v_rel and a_slider per window of tracked positions; publish with the verdict."""
+
+    def __init__(self, **kwargs):
+        super().__init__('three_stage_estimator', **kwargs)
+        self._values = declare_parameters(self, PARAMS, check_parameters)
+        self.add_post_set_parameters_callback(self._on_parameters_set)
+        self._windower = PositionWindower(_settings(self._values))
+        self._publisher = self.create_publisher(
+            DerivativeEstimate, 'estimation/derivatives', DATA_QOS)
+        self._worker = OrderedWorker('estimator', self._on_job_error)
+        self.create_subscription(TrackedPositions, 'tracking/positions', self._on_positions,
+                                 DATA_QOS)
+        self.windows_published = 0
+
+    def _on_parameters_set(self, parameters):
+        self._values.update({p.name: p.value for p in parameters if p.name in PARAMS})
+        if any(p.name in ('window_periods', 'hop_periods', 'min_amplitude',
+                          'frequency_tolerance') for p in parameters):
+            self._windower = PositionWindower(_settings(self._values))
+
+    def _on_positions(self, msg):
+        valid = msg.slider_valid and msg.stator_valid
+        stamp = conversions.stamp_to_seconds(msg.header.stamp)
+        for event in self._windower.push(stamp, msg.frame_index, msg.stator_position,
+                                         msg.slider_position, valid):
+            if isinstance(event, Skip):
+                self.get_logger().info(f'skipped {event.count} samples: {event.reason}')
+            else:
+                header = Header(stamp=conversions.seconds_to_stamp(event.time[0]),
+                                frame_id=msg.header.frame_id)
+                values = dict(self._values)
+                self._worker.submit(lambda w=event, h=header, v=values: self._analyse(w, h, v))
+
+    def _analyse(self, window, header, values):
+        options = {'epsilon': values['epsilon']} if values['method'] == 'three-stage' else {}
+        est, memory = estimation.relative_memory_test(
+            window.time, window.stator_position, window.slider_position, values['method'],
+            frequency=window.frequency, k=values['memory_k'], margin=values['memory_margin'],
+            **options)
+        self._publisher.publish(conversions.derivative_estimate(
+            header, window, est, memory, values['epsilon']))
+        self.windows_published += 1
+
+    def _on_job_error(self, job, error):
+        self.get_logger().error(f'window not analysed: {error}')
+
+    def destroy_node(self):
+        """Finish the queued windows, then destroy the node."""
+        self._worker.stop()
+        super().destroy_node()
+
+
+def main(args=None):
+    """Run the node (console script three_stage_estimator)."""
+    return run(ThreeStageEstimator, args)
+
+
+if __name__ == '__main__':
+    main()
