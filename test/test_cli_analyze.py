@@ -38,7 +38,7 @@ def _analysis(tmp_path_factory, scenario, *extra):
 
 @pytest.fixture(scope='module')
 def paper(tmp_path_factory):
-    return _analysis(tmp_path_factory, 'paper', '--report', 'REPORT')
+    return _analysis(tmp_path_factory, 'paper')
 
 
 def _inside(value, interval):
