@@ -25,6 +25,7 @@ setup(
     entry_points={
         'console_scripts': [
             'microball = microball_ros.cli:main',
+            'servo_commander = microball_ros.nodes.servo_commander:main',
             'three_stage_estimator = microball_ros.nodes.three_stage_estimator:main',
             'friction_identifier = microball_ros.nodes.friction_identifier:main',
         ],
