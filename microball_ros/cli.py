@@ -15,6 +15,10 @@ from microball_ros.core.records import RecordError
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
 
+# FFmpeg inside OpenCV prints its own parser complaints about a broken video; our one-line
+# error says it better.
+os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
+
 
 class CliError(Exception):
     """Bad input detected by the CLI itself; the message is shown as one line."""
@@ -87,13 +91,74 @@ def cmd_analyze(args):
     return 0
 
 
+def _roi(text):
+    from microball_ros.core.tracking import parse_roi
+
+    try:
+        return parse_roi(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _track_progress(done, total):
+    of = f' of {total}' if total else ''
+    print(f'tracked {done}{of} frames', file=sys.stderr, flush=True)
+
+
+def cmd_track(args):
+    """Track the slider and stator marks through a video and write the position CSV."""
+    from microball_ros.core.records import write_positions_csv
+    from microball_ros.core.tracking import check_scale, track
+
+    check_scale(args.meters_per_pixel)
+    if not os.path.exists(args.video):
+        raise CliError(f'{args.video}: no such file or folder')
+    result = track(args.video, {'slider': args.slider_roi, 'stator': args.stator_roi},
+                   args.meters_per_pixel, fps=args.fps, exposure=args.exposure,
+                   progress=_track_progress)
+    columns = result.to_columns()
+    write_positions_csv(args.output, columns)
+    lost = {name: int(sum(1 for v in columns[f'{name}_position'] if v != v))
+            for name in ('slider', 'stator')}
+    print(f"wrote {len(columns['time'])} frames to {args.output} "
+          f"(lost: slider {lost['slider']}, stator {lost['stator']})")
+    return 0
+
+
+def cmd_render(args):
+    """Render the simulated rig to a video, and print the track command that reads it."""
+    from microball_ros.core import bench, camera, rig
+
+    scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
+                                                    if args.seed is not None else {}))
+    _progress(f'rendering {args.duration:g} s of scenario {args.scenario!r} ...')
+    video, _ = rig.render_bench(scenario, args.duration)
+    codec = camera.LOSSLESS_CODEC if args.lossless else 'MJPG'
+    camera.write_video(args.output, video.frames, fps=video.config.fps, codec=codec)
+    rois = {name: ','.join(str(v) for v in roi) for name, roi in video.rois.items()}
+    print(f'wrote {len(video.frames)} frames ({codec}) to {args.output}')
+    print(f"track it with: microball track {args.output} --slider-roi {rois['slider']} "
+          f"--stator-roi {rois['stator']} --meters-per-pixel {video.config.meters_per_pixel:.6g} "
+          f'--exposure {video.config.exposure:.6g} --output positions.csv')
+    return 0
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (and a pointer to --help), exit status 2."""
+
+    def error(self, message):
+        """Print one line and exit with status 2."""
+        self.exit(EXIT_BAD_INPUT, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
+
+
 def build_parser():
     """Build the argument parser of every sub-command."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog='microball',
         description='Measure and model dynamic friction in MEMS microball bearings '
                     '(Tan, Modafe and Ghodssi, ACC 2005) on ROS 2.')
-    commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True)
+    commands = parser.add_subparsers(dest='command', metavar='COMMAND', required=True,
+                                     parser_class=_Parser)
 
     simulate = commands.add_parser(
         'simulate', help='positions from the bench model, no camera',
@@ -125,6 +190,39 @@ def build_parser():
     analyze.add_argument('--json', help='write the results as JSON to this file')
     analyze.add_argument('--report', help='write figures and estimates.csv into this folder')
     analyze.set_defaults(func=cmd_analyze)
+
+    track = commands.add_parser(
+        'track', help='track the slider and stator marks in a video',
+        description='Track the etched marks of the slider and the stator through a video (or '
+                    'a folder of images) and write their positions; a lost mark leaves its '
+                    'cell empty.')
+    track.add_argument('video', help='video file any OpenCV build reads, or a folder of images')
+    track.add_argument('--slider-roi', type=_roi, required=True, metavar='X,Y,W,H',
+                       help='region of the slider mark over its whole travel, px')
+    track.add_argument('--stator-roi', type=_roi, required=True, metavar='X,Y,W,H',
+                       help='region of the stator mark over its whole travel, px')
+    track.add_argument('--meters-per-pixel', type=float, required=True, metavar='M',
+                       help='image scale along the bearing axis, m/px')
+    track.add_argument('--fps', type=_positive_float, default=None,
+                       help="frame rate (default: the video's own)")
+    track.add_argument('--exposure', type=_positive_float, default=None,
+                       help='exposure time, s, for the mid-exposure stamps (default: half '
+                            'the frame period)')
+    track.add_argument('--output', required=True, help='position CSV to write')
+    track.set_defaults(func=cmd_track)
+
+    render = commands.add_parser(
+        'render', help='render the simulated rig to a video (for track)',
+        description='Simulate the rig and film it with the synthetic camera (motion blur, '
+                    'noise, uneven light).')
+    render.add_argument('--scenario', default='paper', help='scenario preset (default: paper)')
+    render.add_argument('--duration', type=_positive_float, default=10.0,
+                        help='seconds of video (default: 10)')
+    render.add_argument('--output', required=True, help='video file to write (.mkv, .avi)')
+    render.add_argument('--seed', type=int, default=None, help='noise seed (default: preset)')
+    render.add_argument('--lossy', dest='lossless', action='store_false',
+                        help='MJPG instead of the lossless FFV1')
+    render.set_defaults(func=cmd_render)
     return parser
 
 

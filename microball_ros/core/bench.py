@@ -257,7 +257,7 @@ class BenchRecord:
         return {name: getattr(self, name) for name in names}
 
 
-def _drift(rng, n_frames, period, velocity_rms, correlation_time):
+def slider_drift(rng, n_frames, period, velocity_rms, correlation_time):
     """Return the drift (m) at n_frames frames: the integral of an Ornstein-Uhlenbeck velocity.
 
     The velocity starts in its stationary distribution and follows the exact discretisation
@@ -309,7 +309,7 @@ def simulate(scenario, duration, *, dt=0.001, frame_rate=None):
     rng = np.random.default_rng(scenario.seed)
     stator_noise = rng.standard_normal(n_frames) * scenario.noise_std
     slider_noise = rng.standard_normal(n_frames) * scenario.noise_std
-    drift = _drift(rng, n_frames, 1.0 / frame_rate, scenario.drift_velocity,
+    drift = slider_drift(rng, n_frames, 1.0 / frame_rate, scenario.drift_velocity,
                    scenario.drift_time)
     return BenchRecord(
         time=time, stator_position=blurred[:, 0] + stator_noise,

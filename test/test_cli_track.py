@@ -1,0 +1,115 @@
+"""`microball render` / `microball track`: frames of the simulated rig -> positions -> analysis."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from microball_ros.cli import main
+from microball_ros.core import bench, camera, rig
+from microball_ros.core.records import read_positions_csv, write_positions_csv
+
+
+@pytest.fixture(scope='module')
+def paper_video(tmp_path_factory):
+    folder = tmp_path_factory.mktemp('video')
+    video, _ = rig.render_bench(bench.get_scenario('paper'), 20.0)
+    path = str(folder / 'paper.mkv')
+    camera.write_video(path, video.frames, fps=video.config.fps)
+    return folder, path, video
+
+
+def _track_args(video, path, output):
+    rois = {name: ','.join(map(str, roi)) for name, roi in video.rois.items()}
+    return ['track', path, '--slider-roi', rois['slider'], '--stator-roi', rois['stator'],
+            '--meters-per-pixel', repr(video.config.meters_per_pixel),
+            '--exposure', repr(video.config.exposure), '--output', output]
+
+
+def _analyze(csv_path, json_path):
+    assert main(['analyze', str(csv_path), '--json', str(json_path)]) == 0
+    return json.loads(json_path.read_text())
+
+
+def test_tracked_video_gives_the_same_verdict_and_model_as_the_true_positions(paper_video):
+    folder, path, video = paper_video
+    tracked_csv = folder / 'tracked.csv'
+    assert main(_track_args(video, path, str(tracked_csv))) == 0
+    record = read_positions_csv(str(tracked_csv))
+    assert record.valid.all()
+    # Sub-pixel: the tracked positions follow the exposure-averaged truth (up to the constant
+    # offset between image and plate coordinates).
+    scale = video.config.meters_per_pixel
+    for mark in ('slider', 'stator'):
+        truth = getattr(video.truth, mark).pixel_mean * scale
+        error = getattr(record, f'{mark}_position') - truth
+        assert np.std(error) / scale < 0.1
+    np.testing.assert_allclose(record.time, video.truth.time, atol=1e-6)
+
+    true_csv = folder / 'true.csv'
+    write_positions_csv(str(true_csv), {
+        'time': video.truth.time, 'stator_position': video.truth.stator.position_mean,
+        'slider_position': video.truth.slider.position_mean})
+    tracked = _analyze(tracked_csv, folder / 'tracked.json')
+    true = _analyze(true_csv, folder / 'true.json')
+    assert tracked['memoryless'] is true['memoryless'] is True
+    assert tracked['phase_difference'] == pytest.approx(true['phase_difference'], abs=0.02)
+    slope = true['model']['A'] * true['model']['alpha'] / 3
+    assert tracked['model']['A'] * tracked['model']['alpha'] / 3 == pytest.approx(slope,
+                                                                                  rel=0.03)
+    # The model from the true positions lies within the tracked model's own intervals.
+    for name in ('A', 'alpha'):
+        low, high = tracked['model'][f'{name}_ci95']
+        assert low <= true['model'][name] <= (high if high is not None else np.inf)
+
+
+def test_a_hidden_mark_leaves_empty_cells_and_is_reacquired(paper_video, tmp_path):
+    _, _, video = paper_video
+    frames = video.frames[:120].copy()
+    x, y, w, h = video.rois['slider']
+    frames[40:46, y:y + h, x:x + w] = 170  # the mark is covered by a bright particle
+    images = tmp_path / 'frames'
+    camera.write_image_sequence(str(images), frames)
+    output = tmp_path / 'tracked.csv'
+    assert main(_track_args(video, str(images), str(output)) + ['--fps', '30']) == 0
+    lines = output.read_text().splitlines()
+    assert lines[0] == 'time,stator_position,slider_position,slider_quality,stator_quality'
+    rows = [line.split(',') for line in lines[1:]]
+    assert len(rows) == 120
+    lost = [k for k, row in enumerate(rows) if row[2] == '']
+    assert lost == list(range(40, 46))
+    assert all(float(rows[k][3]) < 0.5 for k in lost)
+    assert all(row[1] != '' for row in rows)
+    assert float(rows[46][3]) > 0.5
+
+
+def _run(*argv):
+    return subprocess.run([sys.executable, '-m', 'microball_ros.cli', *argv],
+                          capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize('change, message', [
+    ({'video': 'absent.mkv'}, 'no such file'),
+    ({'video': 'garbage.mkv'}, 'cannot read video'),
+    ({'--slider-roi': '700,10,300,40'}, 'outside'),
+    ({'--meters-per-pixel': '0'}, 'positive'),
+    ({'--meters-per-pixel': '-2e-6'}, 'positive'),
+    ({'--stator-roi': '1,2,3'}, 'four integers'),
+])
+def test_bad_track_input_gives_one_line_and_exit_2(paper_video, tmp_path, change, message):
+    _, path, video = paper_video
+    (tmp_path / 'garbage.mkv').write_bytes(b'not a video at all')
+    args = _track_args(video, path, str(tmp_path / 'out.csv'))
+    for key, value in change.items():
+        if key == 'video':
+            args[1] = str(tmp_path / value)
+        else:  # KEY=VALUE, so that argparse takes a negative number as the value
+            at = args.index(key)
+            args[at:at + 2] = [f'{key}={value}']
+    result = _run(*args)
+    assert result.returncode == 2
+    lines = [line for line in result.stderr.splitlines() if not line.startswith('tracked ')]
+    assert len(lines) == 1 and message in lines[0], result.stderr
+    assert not (tmp_path / 'out.csv').exists()
