@@ -26,6 +26,8 @@ setup(
         'console_scripts': [
             'microball = microball_ros.cli:main',
             'servo_commander = microball_ros.nodes.servo_commander:main',
+            'bench_simulator = microball_ros.nodes.bench_simulator:main',
+            'camera_tracker = microball_ros.nodes.camera_tracker:main',
             'three_stage_estimator = microball_ros.nodes.three_stage_estimator:main',
             'friction_identifier = microball_ros.nodes.friction_identifier:main',
         ],

@@ -82,3 +82,39 @@ def friction_model(header, fit, validation, window_count):
     msg.phase_simulated = float(validation.phase_simulated)
     msg.phase_measured = float(validation.phase_measured)
     return msg
+
+
+def image_message(frame, stamp, frame_id='camera'):
+    """Return a mono8 (H x W uint8) or bgr8 (H x W x 3) array as a sensor_msgs/Image."""
+    from sensor_msgs.msg import Image
+
+    frame = np.ascontiguousarray(frame, dtype=np.uint8)
+    msg = Image()
+    msg.header.stamp = stamp if isinstance(stamp, Time) else seconds_to_stamp(stamp)
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = frame.shape[:2]
+    msg.encoding = 'mono8' if frame.ndim == 2 else 'bgr8'
+    msg.is_bigendian = 0
+    msg.step = frame.strides[0]
+    msg.data = frame.tobytes()
+    return msg
+
+
+_CHANNELS = {'mono8': 1, '8UC1': 1, 'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4}
+
+
+def image_array(msg):
+    """Return a sensor_msgs/Image as a grey H x W uint8 array (8-bit encodings only)."""
+    import cv2
+
+    channels = _CHANNELS.get(msg.encoding)
+    if channels is None:
+        raise ValueError(f'unsupported image encoding {msg.encoding!r} '
+                         f'(supported: {", ".join(_CHANNELS)})')
+    rows = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
+    pixels = rows[:, :msg.width * channels].reshape(msg.height, msg.width, channels)
+    if channels == 1:
+        return pixels[:, :, 0]
+    code = {'bgr8': cv2.COLOR_BGR2GRAY, 'rgb8': cv2.COLOR_RGB2GRAY,
+            'bgra8': cv2.COLOR_BGRA2GRAY, 'rgba8': cv2.COLOR_RGBA2GRAY}[msg.encoding]
+    return cv2.cvtColor(pixels, code)

@@ -37,6 +37,19 @@ def camera_for(scenario, config=None):
                    exposure=min(config.exposure, scenario.exposure, 1.0 / scenario.frame_rate))
 
 
+def suggested_rois(scenario, config=None):
+    """Return {'slider': roi, 'stator': roi} (x, y, w, h px) covering the whole stroke.
+
+    Both marks may travel the stator's full amplitude (the slider follows at most that far)
+    plus 15 % for drift and the crank-slider's second harmonic.
+    """
+    config = camera_for(scenario, config)
+    cam = camera.SyntheticCamera(config)
+    reach = 1.15 * scenario.stator_amplitude
+    return {plate: cam.suggest_roi(plate, tuple(config.to_px(plate, [-reach, reach])))
+            for plate in ('slider', 'stator')}
+
+
 def rig_motion(scenario, duration, *, dt=0.001):
     """Integrate the rig for duration s (after its settle time) on a dt grid."""
     omega = scenario.angular_frequency
@@ -67,3 +80,92 @@ def render_bench(scenario, duration, config=None, seed=None):
                                  (motion.time, motion.slider_position), n_frames, config,
                                  seed=scenario.seed if seed is None else seed)
     return video, motion
+
+
+@dataclass(frozen=True)
+class RigFrame:
+    """One camera frame of the running rig and the truth at its mid-exposure instant."""
+
+    index: int
+    stamp: float
+    image: np.ndarray
+    truth: camera.FrameTruth
+    state: bench.BenchState
+    crank_angular_velocity: float
+
+
+class RigStepper:
+    """The simulated rig frame by frame, driven by servo commands (the bench_simulator's core).
+
+    The motor follows commands through core.servo.MotorModel (ramp, then a first-order lag);
+    the bench is integrated every ``dt`` with the motor's speed; the slider drifts slowly
+    (streaming form of bench.slider_drift); frame n is exposed over
+    [n / fps, n / fps + exposure] and stamped at its middle. Deterministic: the frames depend
+    only on the scenario, the seed and the commands with the frame index they arrive before.
+    The rig starts at rest; time 0 is the first frame's exposure start.
+    """
+
+    def __init__(self, scenario, config=None, seed=None, motor_lag=0.05, dt=0.001):
+        from microball_ros.core.servo import MotorModel
+
+        self.scenario = scenario
+        self.config = camera_for(scenario, config)
+        self.camera = camera.SyntheticCamera(self.config,
+                                             scenario.seed if seed is None else seed)
+        self.motor = MotorModel(motor_lag)
+        self.dt = dt
+        self.index = 0
+        self._integrator = bench.BenchIntegrator(scenario, dt=dt)
+        self._rng = np.random.default_rng([scenario.seed if seed is None else seed, 2])
+        self._drift_position = 0.0
+        self._drift_velocity = scenario.drift_velocity * self._rng.standard_normal()
+        self._samples = [self._sample()]
+
+    @property
+    def time(self):
+        """Return the rig's current time, s."""
+        return self._integrator.time
+
+    def command(self, omega, ramp_time=0.0):
+        """Set the crank's target angular velocity (rad/s) from now on."""
+        self.motor.command(self.time, omega, ramp_time)
+
+    def _sample(self):
+        state = self._integrator.state
+        return (state.time, state.stator_position, state.slider_position + self._drift_position)
+
+    def _advance(self, t_end):
+        """Integrate to t_end in steps of dt, recording positions at every step."""
+        scenario = self.scenario
+        rho = math.exp(-self.dt / scenario.drift_time)
+        kick = scenario.drift_velocity * math.sqrt(1.0 - rho * rho)
+        while self.time < t_end - 1e-12:
+            step = min(self.dt, t_end - self.time)
+            omega = self.motor.advance(self.time, step)
+            self._integrator.step_to(self.time + step, omega)
+            velocity = rho * self._drift_velocity + kick * self._rng.standard_normal()
+            self._drift_position += 0.5 * (velocity + self._drift_velocity) * step
+            self._drift_velocity = velocity
+            self._samples.append(self._sample())
+
+    def next_frame(self):
+        """Advance through the next frame's exposure and return the RigFrame."""
+        cfg = self.config
+        start = self.index / cfg.fps
+        middle, end = start + cfg.exposure / 2.0, start + cfg.exposure
+        self._advance(middle)
+        state = replace(self._integrator.state,
+                        slider_position=self._integrator.state.slider_position
+                        + self._drift_position)
+        omega = self._integrator.omega
+        self._advance(end)
+        # Keep only the samples this frame's exposure needs (plus a margin for the spline).
+        samples = np.array([s for s in self._samples if s[0] >= start - 3 * self.dt])
+        stator, slider = (samples[:, 0], samples[:, 1]), (samples[:, 0], samples[:, 2])
+        image, truth = self.camera.render_frame(self.index, camera.as_motion(stator),
+                                                camera.as_motion(slider))
+        self._samples = self._samples[-4:]
+        frame = RigFrame(index=self.index, stamp=middle, image=image, truth=truth, state=state,
+                         crank_angular_velocity=omega)
+        self.index += 1
+        return frame

@@ -1,0 +1,147 @@
+"""camera_tracker: camera frames (or a video file) -> /tracking/positions.
+
+Subscribes to sensor_msgs/Image on /camera/image_raw (from bench_simulator or any camera
+driver such as v4l2_camera or usb_cam), or reads ``video_path``, and tracks the slider and
+stator marks in their regions of interest with core.tracking (sub-pixel, blur-robust). Each
+TrackedPositions keeps the image's stamp (plus ``stamp_offset``, for drivers that stamp the
+start of the exposure); a lost mark is published as invalid (NaN), never invented. With
+``publish_debug_image`` the frame is republished with the ROIs and tracked marks drawn.
+"""
+
+import math
+
+import cv2
+from microball_msgs.msg import TrackedPositions
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+
+from microball_ros import conversions
+from microball_ros.core.tracking import FrameSource, Tracker, check_roi, check_scale
+from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
+
+PARAMS = {
+    'slider_roi': Param([0, 0, 0, 0], 'slider mark region x, y, w, h, px (over its whole '
+                                      'travel)', read_only=True),
+    'stator_roi': Param([0, 0, 0, 0], 'stator mark region x, y, w, h, px', read_only=True),
+    'meters_per_pixel': Param(5e-6, 'image scale along the bearing axis, m/px', 1e-9, 1.0,
+                              read_only=True),
+    'stamp_offset': Param(0.0, 'added to each image stamp to get mid-exposure time, s',
+                          -1.0, 1.0),
+    'video_path': Param('', 'track this video file (or image folder) instead of the topic',
+                        read_only=True),
+    'video_fps': Param(0.0, "frame rate of video_path; 0 takes the file's", 0.0, 10000.0,
+                       read_only=True),
+    'video_exposure': Param(0.0, 'exposure of video_path frames, s; 0 assumes half the frame '
+                                 'period', 0.0, 1.0, read_only=True),
+    'video_speed': Param(1.0, 'video playback speed factor', 0.01, 1000.0, read_only=True),
+    'publish_debug_image': Param(False, 'publish tracking/debug_image with the marks drawn'),
+    'frame_id': Param('camera', 'frame_id for positions from video_path', read_only=True),
+}
+
+
+def check_parameters(values):
+    """Return None if the parameter values are consistent, else a one-line reason."""
+    try:
+        check_roi(values['slider_roi'], name='slider')
+        check_roi(values['stator_roi'], name='stator')
+        check_scale(values['meters_per_pixel'])
+    except ValueError as error:
+        return str(error)
+    return None
+
+
+def debug_image(frame, rois, positions_px):
+    """Return a BGR copy of frame with the ROIs (blue) and tracked marks (green) drawn."""
+    image = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
+    for name, (x, y, w, h) in rois.items():
+        cv2.rectangle(image, (x, y), (x + w - 1, y + h - 1), (255, 128, 0), 1)
+        column = positions_px.get(name, math.nan)
+        if math.isfinite(column):
+            cv2.line(image, (int(round(column)), y), (int(round(column)), y + h - 1),
+                     (0, 255, 0), 1)
+    return image
+
+
+class CameraTracker(Node):
+    """Track the two marks in every frame and publish their positions."""
+
+    def __init__(self, **kwargs):
+        super().__init__('camera_tracker', **kwargs)
+        self._values = declare_parameters(self, PARAMS, check_parameters)
+        self.add_post_set_parameters_callback(
+            lambda ps: self._values.update({p.name: p.value for p in ps if p.name in PARAMS}))
+        values = self._values
+        self._rois = {'slider': tuple(values['slider_roi']),
+                      'stator': tuple(values['stator_roi'])}
+        self._tracker = None
+        self._frames = 0
+        self.frames_dropped = 0
+        self._publisher = self.create_publisher(TrackedPositions, 'tracking/positions',
+                                                DATA_QOS)
+        self._debug = self.create_publisher(Image, 'tracking/debug_image', 10)
+        if values['video_path']:
+            self._open_video(values)
+        else:
+            self.create_subscription(Image, 'camera/image_raw', self._on_image, DATA_QOS)
+
+    @property
+    def frames_tracked(self):
+        """Return how many frames were tracked."""
+        return self._frames
+
+    def _open_video(self, values):
+        self._video = FrameSource(values['video_path'])
+        fps = values['video_fps'] or self._video.fps
+        if not fps:
+            raise ValueError(f"{values['video_path']}: unknown frame rate; set video_fps")
+        self._tracker = Tracker(self._rois, values['meters_per_pixel'], fps,
+                                values['video_exposure'] or None,
+                                frame_size=self._video.frame_size)
+        self._video_frames = iter(self._video)
+        self._video_timer = self.create_timer(1.0 / (fps * values['video_speed']),
+                                              self._on_video_frame)
+
+    def _on_video_frame(self):
+        frame = next(self._video_frames, None)
+        if frame is None:
+            self._video_timer.cancel()
+            self.get_logger().info(f'video finished after {self._frames} frames')
+            return
+        result = self._tracker.process(frame)
+        self._publish(result, frame, conversions.seconds_to_stamp(result.time),
+                      self._values['frame_id'])
+
+    def _on_image(self, msg):
+        try:
+            frame = conversions.image_array(msg)
+            if self._tracker is None:
+                self._tracker = Tracker(self._rois, self._values['meters_per_pixel'],
+                                        frame_size=(msg.width, msg.height))
+        except ValueError as error:
+            self.frames_dropped += 1
+            self.get_logger().error(f'frame dropped: {error}', throttle_duration_sec=5.0)
+            return
+        stamp = conversions.stamp_to_seconds(msg.header.stamp) + self._values['stamp_offset']
+        result = self._tracker.process(frame, stamp)
+        self._publish(result, frame, conversions.seconds_to_stamp(stamp), msg.header.frame_id)
+
+    def _publish(self, result, frame, stamp, frame_id):
+        slider, stator = result.marks['slider'], result.marks['stator']
+        self._publisher.publish(conversions.tracked_positions(
+            stamp, result.index, result.position('slider'), result.position('stator'),
+            slider.quality, stator.quality, frame_id))
+        self._frames += 1
+        if self._values['publish_debug_image']:
+            drawn = debug_image(np.asarray(frame), self._rois,
+                                {name: m.position_px for name, m in result.marks.items()})
+            self._debug.publish(conversions.image_message(drawn, stamp, frame_id))
+
+
+def main(args=None):
+    """Run the node (console script camera_tracker)."""
+    return run(CameraTracker, args)
+
+
+if __name__ == '__main__':
+    main()
