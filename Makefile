@@ -48,11 +48,8 @@ $(VENV)/.stamp-package: $(VENV)/.stamp-msgs setup.py setup.cfg
 	  || { echo 'set-up failed at step 4/4: pip install -e .'; exit 1; }
 	@touch $@
 
-DEMO := build/demo
-
 demo: setup
-	$(BIN)/microball simulate --scenario paper --duration 40 --output $(DEMO)/paper.csv
-	$(BIN)/microball analyze $(DEMO)/paper.csv --json $(DEMO)/analysis.json --report $(DEMO)/report
+	$(BIN)/microball experiment --scenario paper --duration 40 --speed 1.5
 
 test: setup
 	$(BIN)/python -m pytest
@@ -61,7 +58,9 @@ lint: setup
 	$(BIN)/ruff check .
 
 bench: setup
-	$(BIN)/python bench/run_all.py
+	$(BIN)/pip install -q --disable-pip-version-check -r requirements-bench.txt
+	$(BIN)/python bench/bench_estimation.py
+	$(BIN)/python bench/bench_tracking.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

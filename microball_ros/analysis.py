@@ -25,6 +25,7 @@ class AnalysisResult:
     source: str
     method: str
     epsilon: float
+    exposure: float
     fit_epsilon: object  # float for the three-stage method, else None
     sample_period: float
     fundamental_frequency: float
@@ -46,6 +47,7 @@ class AnalysisResult:
             'source': self.source,
             'method': self.method,
             'epsilon': self.epsilon,
+            'exposure': self.exposure,
             'sample_period': self.sample_period,
             'fundamental_frequency': self.fundamental_frequency,
             'window': {'start': float(self.window.time[0]), 'end': float(self.window.time[-1]),
@@ -136,7 +138,7 @@ def _check_oscillation(time, stator, dt, source):
 
 
 def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, fit_epsilon=0.0,
-                   source='record'):
+                   exposure=0.0, source='record'):
     """Run the whole analysis on a record; raise RecordError on data that cannot be analysed.
 
     The derivatives, the figures and the memory test use ``method`` (and ``epsilon`` for the
@@ -147,6 +149,8 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
     scenario (40 s): epsilon 0.02 gives A = 65, alpha = 1.9, intervals that exclude the truth;
     0.005 gives A = 1.51, alpha = 86; 0 gives A = 1.16 [1.07, 1.27], alpha = 115 [104, 125],
     truth 1.2 and 110. Least squares averages the noise the filter would have removed.
+    ``exposure`` (s) is the camera's: the three-stage method then undoes the averaging of
+    each frame over its exposure (estimation.three_stage).
     """
     if method not in METHODS:
         raise RecordError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
@@ -154,18 +158,19 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
     time, stator, slider = window.time, window.stator_position, window.slider_position
     dt = float(np.median(np.diff(time)))
     frequency = _check_oscillation(time, stator, dt, source)
-    options = {'epsilon': epsilon} if method == 'three-stage' else {}
+    options = {'epsilon': epsilon, 'exposure': exposure} if method == 'three-stage' else {}
     est, memory = estimation.relative_memory_test(time, stator, slider, method,
                                                   frequency=frequency, **options)
     fitted = est
     if method == 'three-stage' and fit_epsilon != epsilon:
-        fitted = estimation.estimate_relative(time, stator, slider, method, epsilon=fit_epsilon,
+        fitted = estimation.estimate_relative(time, stator, slider, method,
+                                              **{**options, 'epsilon': fit_epsilon},
                                               fundamental=frequency)
     fit = friction.fit_least_squares(fitted.velocity, fitted.acceleration, 'langevin')
     comparison = tuple(friction.compare_laws(fitted.velocity, fitted.acceleration))
     validation = friction.validate(fit.law, time, stator, slider, frequency)
     return AnalysisResult(
-        source=source, method=method, epsilon=float(epsilon),
+        source=source, method=method, epsilon=float(epsilon), exposure=float(exposure),
         fit_epsilon=float(fit_epsilon) if method == 'three-stage' else None, sample_period=dt,
         fundamental_frequency=float(frequency), window=window,
         samples_invalid=int(np.count_nonzero(~record.valid)), estimate=est, memory=memory,

@@ -72,7 +72,8 @@ def cmd_analyze(args):
     record = load_positions(args.input)
     _progress(f'analysing {len(record.time)} samples from {args.input} ({args.method}) ...')
     result = analyze_record(record, method=args.method, epsilon=args.epsilon,
-                            fit_epsilon=args.fit_epsilon, source=args.input)
+                            fit_epsilon=args.fit_epsilon, exposure=args.exposure,
+                            source=args.input)
     for line in summary_lines(result):
         print(line)
     if args.json:
@@ -151,6 +152,26 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_BAD_INPUT, f'{self.prog}: error: {message} (see {self.prog} --help)\n')
 
 
+def cmd_experiment(args):
+    """Run the whole simulated rig, node by node over DDS, and print the identified model."""
+    from microball_ros.core import bench
+    from microball_ros.experiment import NodeCrashed, run_experiment, summary_lines
+
+    if args.output:
+        raise CliError('--output (recording the run to a bag) is not available yet')
+    bench.get_scenario(args.scenario)
+    _progress(f'experiment: scenario {args.scenario!r}, {args.duration:g} s simulated at '
+              f'{args.speed:g}x; starting the nodes ...')
+    try:
+        monitor = run_experiment(args.scenario, args.duration, args.speed, progress=_progress)
+    except NodeCrashed as error:
+        print(f'microball experiment: {error}', file=sys.stderr)
+        return 1
+    for line in summary_lines(monitor, args.scenario):
+        print(line)
+    return 0
+
+
 def build_parser():
     """Build the argument parser of every sub-command."""
     parser = _Parser(
@@ -173,6 +194,20 @@ def build_parser():
                           help='omit the true_* columns')
     simulate.set_defaults(func=cmd_simulate)
 
+    experiment = commands.add_parser(
+        'experiment', help='run the whole rig as ROS 2 nodes (simulated by default)',
+        description='Start servo_commander, bench_simulator, camera_tracker, '
+                    'three_stage_estimator and friction_identifier as separate processes, '
+                    'run the scenario, and print the identified friction model.')
+    experiment.add_argument('--scenario', default='paper', help='scenario (default: paper)')
+    experiment.add_argument('--duration', type=_positive_float, default=40.0,
+                            help='simulated seconds (default: 40)')
+    experiment.add_argument('--speed', type=_positive_float, default=1.0,
+                            help='simulation speed factor; != 1 publishes /clock and the '
+                                 'nodes use sim time (default: 1, real time)')
+    experiment.add_argument('--output', help='bag directory to record every topic into')
+    experiment.set_defaults(func=cmd_experiment)
+
     analyze = commands.add_parser(
         'analyze', help='three-stage estimation, memory test and friction fit',
         description='Analyse a position CSV: velocity and acceleration, memory test, '
@@ -184,6 +219,9 @@ def build_parser():
     analyze.add_argument('--fit-epsilon', type=_fraction, default=0.0,
                          help='amplitude-filter threshold of the estimates the Langevin model '
                               'is fitted to (three-stage only; default: 0, see README)')
+    analyze.add_argument('--exposure', type=float, default=0.0, metavar='S',
+                         help='camera exposure time, s: the three-stage method undoes the '
+                              'averaging of each frame over it (default: 0, instantaneous)')
     analyze.add_argument('--method', default='three-stage',
                          choices=['three-stage', 'forward', 'lowpass-forward'],
                          help='derivative estimator (default: three-stage)')

@@ -33,8 +33,8 @@ def _relative_estimates(result, method):
     if method == result.method:
         return result.estimate
     window = result.window
-    options = ({'epsilon': result.epsilon, 'fundamental': result.fundamental_frequency}
-               if method == 'three-stage' else {})
+    options = ({'epsilon': result.epsilon, 'exposure': result.exposure,
+                'fundamental': result.fundamental_frequency} if method == 'three-stage' else {})
     return estimation.estimate_relative(window.time, window.stator_position,
                                         window.slider_position, method, **options)
 
@@ -112,7 +112,7 @@ def figure_compensation(result, path):
     record), else against each other.
     """
     window, frequency = result.window, result.fundamental_frequency
-    common = {'epsilon': result.epsilon, 'fundamental': frequency}
+    common = {'epsilon': result.epsilon, 'exposure': result.exposure, 'fundamental': frequency}
     with_stage3 = estimation.estimate_relative(window.time, window.stator_position,
                                                window.slider_position, **common)
     without = estimation.estimate_relative(window.time, window.stator_position,

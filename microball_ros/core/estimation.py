@@ -24,9 +24,11 @@ from scipy import fft, optimize, signal, stats
 
 # The three-stage options of the paper, and the ones recommended here (see three_stage).
 PAPER_OPTIONS = MappingProxyType({'whole_periods': False, 'slow_band': 0.0, 'edges': 'trim',
-                                  'detrend': False, 'max_compensation': np.inf})
+                                  'detrend': False, 'max_compensation': np.inf,
+                                  'exposure': 0.0})
 RECOMMENDED_OPTIONS = MappingProxyType({'whole_periods': True, 'slow_band': 0.5, 'edges': 'trim',
-                                        'detrend': False, 'max_compensation': 10.0})
+                                        'detrend': False, 'max_compensation': 10.0,
+                                        'exposure': 0.0})
 
 # Normal one-sigma quantile, used to turn a Student-t interval into a one-sigma equivalent.
 _ONE_SIGMA_QUANTILE = stats.norm.cdf(1.0)
@@ -153,6 +155,8 @@ def _filter_and_compensate(crude, dt, epsilon, gain, options):
     keep = slow | (amplitude > epsilon * amplitude[~slow].max(initial=0.0))
     factor = gain(2 * np.pi * frequencies * dt)
     keep &= np.isfinite(factor) & (factor <= options['max_compensation'])
+    # Undo the exposure's averaging (sinc(f T), in phase) along with the differences' gain.
+    factor = factor / np.sinc(frequencies * options['exposure'])
     scale = np.where(keep, factor if options['compensate'] else 1.0, 0.0)
     return fft.irfft(spectrum * scale, n), frequencies[keep]
 
@@ -204,7 +208,7 @@ def _trend(t, x, frequency, order, dt):
 
 def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_periods=None,
                 slow_band=None, edges=None, detrend=None, max_compensation=None,
-                fundamental=None):
+                exposure=None, fundamental=None):
     """Estimate velocity and acceleration by the paper's three-stage algorithm (Fig. 3).
 
     1. center difference of the positions;
@@ -238,6 +242,12 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
       30 fps). Components whose factor exceeds it are dropped, never amplified; the Nyquist
       bin itself is always dropped from the velocity, which center differences cancel. The
       acceleration factor is at most (pi/2)^2 = 2.47.
+    * ``exposure``: the camera's exposure time (s), 0 for instantaneous samples. A camera
+      frame measures a moving mark's position averaged over the exposure (its blurred
+      centroid), which scales the component at f by sinc(f T) = sin(pi f T) / (pi f T) with no
+      phase shift; stage 3 then divides that out too. At 1/60 s: 0.4 % at 2.95 Hz, 3.6 % at
+      its third harmonic, enough to bias a Langevin fit (tracked frames of the paper
+      scenario: A +1.1 %, alpha -1.2 % without it).
 
     Measured (test_core_estimation: mean of 10 records of 19.7 s at 30 fps, 2.95 Hz, 2nd and
     3rd harmonics in v_rel, 200 um slider drift, 3 um noise; relative RMS error of v_rel /
@@ -250,7 +260,8 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
     x = _positions(x, dt, 5)
     options = dict(PAPER_OPTIONS if paper else RECOMMENDED_OPTIONS)
     explicit = {'whole_periods': whole_periods, 'slow_band': slow_band, 'edges': edges,
-                'detrend': detrend, 'max_compensation': max_compensation}
+                'detrend': detrend, 'max_compensation': max_compensation,
+                'exposure': exposure}
     options.update({name: value for name, value in explicit.items() if value is not None})
     if options['edges'] not in ('trim', 'circular'):
         raise ValueError(f"edges must be 'trim' or 'circular', got {options['edges']!r}")
@@ -260,6 +271,9 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
         raise ValueError(f'detrend must be a polynomial order >= 0 or False, got {order!r}')
     if not epsilon >= 0:
         raise ValueError(f'epsilon must be >= 0, got {epsilon!r}')
+    if not 0 <= options['exposure'] <= dt:
+        raise ValueError(f"exposure must be in [0, {dt:g}] s (at most the sample period), got "
+                         f"{options['exposure']!r}")
     needs_fundamental = options['whole_periods'] or options['slow_band'] or order is not False
     if fundamental is None and needs_fundamental:
         fundamental = fundamental_frequency(x, dt)

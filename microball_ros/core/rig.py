@@ -24,28 +24,29 @@ class RigMotion:
     slider_position: np.ndarray
 
 
+# How far either mark may travel, in stator amplitudes: the slider of a lagged (resonant)
+# law overshoots the stator by up to 20 %, plus drift and the crank's second harmonic.
+REACH = 1.5
+
+
 def camera_for(scenario, config=None):
     """Return a CameraConfig for the scenario: its frame rate, a scale that fits the stroke.
 
-    The default 5 um/px makes the paper's +-1.2 mm stroke span 480 of 720 px; a longer stroke
-    gets a coarser scale so the marks stay in the frame (two thirds of the width).
+    The scale is the camera's (5 um/px by default) unless a travel of REACH stator amplitudes
+    either way would not fit in 85 % of the width: then it is coarsened until it does.
     """
     config = camera.CameraConfig() if config is None else config
-    travel = 2.0 * scenario.stator_amplitude * 1.15
-    scale = max(config.meters_per_pixel, travel / (config.width * 2.0 / 3.0))
+    travel = 2.0 * REACH * scenario.stator_amplitude
+    scale = max(config.meters_per_pixel, travel / (0.85 * config.width))
     return replace(config, fps=scenario.frame_rate, meters_per_pixel=scale,
                    exposure=min(config.exposure, scenario.exposure, 1.0 / scenario.frame_rate))
 
 
 def suggested_rois(scenario, config=None):
-    """Return {'slider': roi, 'stator': roi} (x, y, w, h px) covering the whole stroke.
-
-    Both marks may travel the stator's full amplitude (the slider follows at most that far)
-    plus 15 % for drift and the crank-slider's second harmonic.
-    """
+    """Return {'slider': roi, 'stator': roi} (x, y, w, h px) covering REACH amplitudes."""
     config = camera_for(scenario, config)
     cam = camera.SyntheticCamera(config)
-    reach = 1.15 * scenario.stator_amplitude
+    reach = REACH * scenario.stator_amplitude
     return {plate: cam.suggest_roi(plate, tuple(config.to_px(plate, [-reach, reach])))
             for plate in ('slider', 'stator')}
 

@@ -32,6 +32,9 @@ PARAMS = {
     'motor_lag': Param(0.05, 'motor speed lag (first-order time constant), s', 0.0, 5.0,
                        read_only=True),
     'frame_id': Param('camera', 'frame_id of the images and ground truth', read_only=True),
+    'wait_for_subscribers': Param(False, 'hold the first frame until the images and the '
+                                         'ground truth each have a matched subscriber and a '
+                                         'servo command has arrived (a reproducible start)'),
 }
 
 
@@ -55,6 +58,7 @@ class BenchSimulator(Node):
         self._rig = RigStepper(scenario, seed=None if values['seed'] < 0 else values['seed'],
                                motor_lag=values['motor_lag'])
         self._law = scenario.law.name
+        self._servo = None
         self._images = self.create_publisher(Image, 'camera/image_raw', DATA_QOS)
         self._truth = self.create_publisher(BenchState, 'bench/ground_truth', DATA_QOS)
         self._clock = self.create_publisher(ClockMsg, '/clock', 10)
@@ -80,12 +84,19 @@ class BenchSimulator(Node):
             self._start_timer()
 
     def _on_command(self, msg):
-        omega = msg.angular_velocity if msg.enabled else 0.0
-        self._rig.command(omega, msg.ramp_time)
+        setting = (msg.enabled, msg.angular_velocity, msg.ramp_time)
+        if setting == self._servo:
+            return  # a heartbeat repeating the current command
+        self._servo = setting
+        self._rig.command(msg.angular_velocity if msg.enabled else 0.0, msg.ramp_time)
         self.get_logger().info(f'servo: {"on" if msg.enabled else "off"}, '
                                f'{msg.frequency:g} Hz, ramp {msg.ramp_time:g} s')
 
     def _on_frame(self):
+        if self._rig.index == 0 and self._values['wait_for_subscribers'] and (
+                self._servo is None or self._images.get_subscription_count() < 1
+                or self._truth.get_subscription_count() < 1):
+            return
         duration = self._values['duration']
         if duration and self._rig.index / self._rig.config.fps >= duration:
             self._timer.cancel()

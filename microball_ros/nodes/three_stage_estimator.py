@@ -22,6 +22,9 @@ PARAMS = {
                           'component) of the published estimates; 0 keeps every component, '
                           'which the friction fit needs (the filter removes the friction '
                           "law's small harmonics); the paper used 0.02-0.18", 0.0, 0.99),
+    'exposure': Param(0.0, 'camera exposure time, s; the three-stage method undoes the '
+                           'averaging of each frame over it (0: instantaneous samples)',
+                      0.0, 1.0),
     'window_periods': Param(8.0, 'analysis window, stator periods', 4.0, 1000.0),
     'hop_periods': Param(4.0, 'advance between windows, stator periods', 0.1, 1000.0),
     'min_amplitude': Param(1e-5, 'stator amplitude below which a window is skipped, m',
@@ -83,7 +86,8 @@ class ThreeStageEstimator(Node):
                 self._worker.submit(lambda w=event, h=header, v=values: self._analyse(w, h, v))
 
     def _analyse(self, window, header, values):
-        options = {'epsilon': values['epsilon']} if values['method'] == 'three-stage' else {}
+        options = ({'epsilon': values['epsilon'], 'exposure': values['exposure']}
+                   if values['method'] == 'three-stage' else {})
         est, memory = estimation.relative_memory_test(
             window.time, window.stator_position, window.slider_position, values['method'],
             frequency=window.frequency, k=values['memory_k'], margin=values['memory_margin'],

@@ -1,0 +1,254 @@
+"""``microball experiment``: run every node of the rig as its own process over DDS.
+
+Starts servo_commander, bench_simulator, camera_tracker, three_stage_estimator and
+friction_identifier as separate processes (``python -m microball_ros.nodes.<name>``), watches
+their topics from a monitor node in this process, shows progress, and stops them all at the
+end, on Ctrl-C, or when one of them dies (saying which and why). Children also get SIGTERM if
+this process is killed outright (Linux parent-death signal), so no node is left orphaned.
+"""
+
+import ctypes
+import math
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+from microball_msgs.msg import BenchState, DerivativeEstimate, FrictionModel, TrackedPositions
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+
+from microball_ros.core import bench, rig
+from microball_ros.nodes.common import DATA_QOS
+
+NODES = ('servo_commander', 'bench_simulator', 'camera_tracker', 'three_stage_estimator',
+         'friction_identifier')
+_PR_SET_PDEATHSIG = 1
+
+
+class NodeCrashed(RuntimeError):
+    """A node process exited while the experiment was running."""
+
+
+def _die_with_parent():
+    """Ask the kernel to SIGTERM this child when its parent dies (runs in the child)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def _ros_value(value):
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, (list, tuple)):
+        return '[' + ','.join(_ros_value(v) for v in value) + ']'
+    if isinstance(value, str):
+        return value
+    return repr(value)
+
+
+def node_parameters(scenario_name, duration, speed):
+    """Return node name -> parameter dict for an experiment on the named scenario."""
+    scenario = bench.get_scenario(scenario_name)
+    rois = rig.suggested_rois(scenario)
+    sim_time = {'use_sim_time': True} if speed != 1.0 else {}
+    return {
+        'servo_commander': {'frequency': scenario.frequency,
+                            'amplitude': scenario.stator_amplitude, 'ramp_time': 1.0,
+                            **sim_time},
+        'bench_simulator': {'scenario': scenario_name, 'speed': float(speed),
+                            'publish_clock': speed != 1.0, 'duration': float(duration),
+                            'wait_for_subscribers': True},
+        'camera_tracker': {'slider_roi': list(rois['slider']),
+                           'stator_roi': list(rois['stator']),
+                           'meters_per_pixel': rig.camera_for(scenario).meters_per_pixel,
+                           **sim_time},
+        'three_stage_estimator': {'exposure': rig.camera_for(scenario).exposure, **sim_time},
+        'friction_identifier': dict(sim_time),
+    }
+
+
+# Every subscription the pipeline needs before the bench's first frame: topic -> count
+# (the monitor of this process counts as one).
+_READY = {'camera/image_raw': 1, 'tracking/positions': 2, 'estimation/derivatives': 2}
+
+
+class _Processes:
+    """The node processes, their logs, and their orderly (or forced) end."""
+
+    def __init__(self, parameters, log_dir):
+        self.log_dir = log_dir
+        self.parameters = parameters
+        self.procs = {}
+
+    def start(self, name):
+        """Start one node process, its output going to its log file."""
+        args = [sys.executable, '-m', f'microball_ros.nodes.{name}', '--ros-args']
+        for key, value in self.parameters[name].items():
+            args += ['-p', f'{key}:={_ros_value(value)}']
+        log = open(os.path.join(self.log_dir, f'{name}.log'), 'w')
+        self.procs[name] = (subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
+                                             stdin=subprocess.DEVNULL,
+                                             preexec_fn=_die_with_parent), log)
+
+    def check(self):
+        """Raise NodeCrashed naming the first node that has exited."""
+        for name, (proc, _) in self.procs.items():
+            code = proc.poll()
+            if code is not None:
+                raise NodeCrashed(f'node {name} exited with code {code}: {self.last_line(name)}')
+
+    def last_line(self, name):
+        """Return the last non-empty line of a node's log."""
+        with open(os.path.join(self.log_dir, f'{name}.log')) as handle:
+            lines = [line.strip() for line in handle if line.strip()]
+        return lines[-1] if lines else '(no output)'
+
+    def stop(self, grace=5.0):
+        """SIGINT every node, then SIGKILL whatever is still running after grace seconds."""
+        for proc, _ in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + grace
+        for proc, log in self.procs.values():
+            try:
+                proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            log.close()
+
+
+class _Monitor:
+    """Counts what the nodes publish; holds the newest model and every window's verdict."""
+
+    def __init__(self, context):
+        self.node = rclpy.create_node('microball_experiment_monitor', context=context)
+        self.frames = 0
+        self.tracked = 0
+        self.windows = []
+        self.models = []
+        self.last_change = time.monotonic()
+        for message_type, topic, callback in (
+                (BenchState, 'bench/ground_truth', self._on_frame),
+                (TrackedPositions, 'tracking/positions', self._on_tracked),
+                (DerivativeEstimate, 'estimation/derivatives', self._on_window),
+                (FrictionModel, 'friction/model', self._on_model)):
+            self.node.create_subscription(message_type, topic, callback, DATA_QOS)
+
+    def _touch(self):
+        self.last_change = time.monotonic()
+
+    def _on_frame(self, msg):
+        self.frames += 1
+        self._touch()
+
+    def _on_tracked(self, msg):
+        self.tracked += 1
+        self._touch()
+
+    def _on_window(self, msg):
+        self.windows.append((msg.phase_difference, msg.phase_uncertainty, msg.memoryless))
+        self._touch()
+
+    def _on_model(self, msg):
+        self.models.append(msg)
+        self._touch()
+
+    def progress(self, fps):
+        """Return a one-line progress report."""
+        line = (f'simulated {self.frames / fps:5.1f} s: {self.frames} frames, '
+                f'{self.tracked} tracked, {len(self.windows)} windows')
+        if self.models:
+            model = self.models[-1]
+            line += f', model A = {model.a:.3g} m/s^2, alpha = {model.alpha:.3g} s/m'
+        return line
+
+
+def _interval(bounds):
+    return '[' + ', '.join('inf' if math.isinf(b) else f'{b:.4g}' for b in bounds) + ']'
+
+
+def summary_lines(monitor, scenario_name):
+    """Return the final report: model with intervals, phase difference and verdict."""
+    if not monitor.windows or not monitor.models:
+        return ['no complete analysis window: run longer (--duration)']
+    phases = np.array([w[0] for w in monitor.windows])
+    memoryless = sum(1 for w in monitor.windows if w[2])
+    verdict = 'memoryless' if memoryless > len(monitor.windows) / 2 else \
+        'HYSTERETIC (friction has memory)'
+    model = monitor.models[-1]
+    truth = bench.get_scenario(scenario_name).law
+    return [
+        f'memory test: {memoryless} of {len(monitor.windows)} windows memoryless; phase '
+        f'difference median {np.median(phases):.4f} rad (range {phases.min():.4f} .. '
+        f'{phases.max():.4f}; pi = 3.1416): {verdict}',
+        f'Langevin model from {model.sample_count} samples in {model.window_count} windows: '
+        f'A = {model.a:.4g} m/s^2 {_interval(model.a_ci95)}, alpha = {model.alpha:.4g} s/m '
+        f'{_interval(model.alpha_ci95)}, rmse {model.rmse:.3g} m/s^2',
+        f'validation (Fig. 9): slider amplitude {model.slider_amplitude_simulated * 1e3:.4f} mm '
+        f'simulated vs {model.slider_amplitude_measured * 1e3:.4f} mm measured, phase '
+        f'{model.phase_simulated:.3f} vs {model.phase_measured:.3f} rad',
+        f'bench truth: {truth.name} {truth.params}',
+    ]
+
+
+def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=3.0):
+    """Run the experiment; return the monitor (counts, windows, models) when it is done.
+
+    Done means: the bench has published every frame of ``duration``, each was tracked, and
+    nothing new has arrived for ``quiet_period`` wall seconds (the estimator and identifier
+    have drained their queues). Raises NodeCrashed if a node dies.
+    """
+    scenario = bench.get_scenario(scenario_name)
+    fps = rig.camera_for(scenario).fps
+    expected_frames = math.floor(duration * fps + 1e-9)
+    parameters = node_parameters(scenario_name, duration, speed)
+    log_dir = tempfile.mkdtemp(prefix='microball-experiment-')
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    monitor = _Monitor(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(monitor.node)
+    processes = _Processes(parameters, log_dir)
+    node = monitor.node
+    try:
+        wall_limit = time.monotonic() + 60.0 + 4.0 * duration / speed
+
+        def spin_until(condition, what):
+            while not condition():
+                executor.spin_once(timeout_sec=0.1)
+                processes.check()
+                if time.monotonic() > wall_limit:
+                    raise NodeCrashed(f'timed out waiting for {what}; node logs in {log_dir}')
+
+        # Downstream first; the bench starts once every subscription is in place, and holds
+        # its first frame until its own subscribers are matched, so no frame is lost.
+        for name in NODES:
+            if name != 'bench_simulator':
+                processes.start(name)
+        spin_until(lambda: all(node.count_subscribers(topic) >= count
+                               for topic, count in _READY.items()), 'the nodes to connect')
+        processes.start('bench_simulator')
+        progress('nodes connected; the bench is running')
+        next_report = time.monotonic() + 2.0
+
+        def done():
+            nonlocal next_report
+            now = time.monotonic()
+            if now >= next_report:
+                progress(monitor.progress(fps))
+                next_report = now + 2.0
+            finished = monitor.frames >= expected_frames and monitor.tracked >= expected_frames
+            return finished and now - monitor.last_change > quiet_period
+
+        spin_until(done, 'the analysis of every frame')
+        return monitor
+    finally:
+        processes.stop()
+        executor.shutdown()
+        monitor.node.destroy_node()
+        if context.ok():
+            rclpy.shutdown(context=context)

@@ -1,0 +1,82 @@
+"""`microball experiment`: every node a separate process over DDS, end to end."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from microball_ros.experiment import run_experiment
+
+
+def _run(scenario, duration=20.0, speed=1.5):
+    return run_experiment(scenario, duration, speed, progress=lambda line: None)
+
+
+def test_paper_experiment_recovers_the_bench_model_and_calls_it_memoryless():
+    monitor = _run('paper')
+    assert monitor.frames == monitor.tracked == 600
+    assert len(monitor.windows) >= 10
+    assert all(memoryless for _, _, memoryless in monitor.windows)
+    model = monitor.models[-1]
+    assert model.name == 'langevin'
+    assert model.a_ci95[0] <= 1.2 <= model.a_ci95[1]
+    assert model.alpha_ci95[0] <= 110.0 <= model.alpha_ci95[1]
+    assert model.a == pytest.approx(1.2, rel=0.05)
+    assert model.alpha == pytest.approx(110.0, rel=0.05)
+    assert model.slider_amplitude_simulated == pytest.approx(model.slider_amplitude_measured,
+                                                             rel=0.01)
+
+
+def test_lagged_friction_is_called_hysteretic():
+    monitor = _run('lagged')
+    assert len(monitor.windows) >= 10
+    assert not any(memoryless for _, _, memoryless in monitor.windows)
+    # A 35 ms lag at 2.95 Hz moves the phase by about atan(w tau) = 0.57 rad from pi.
+    assert all(2.3 < phase < 2.8 for phase, _, _ in monitor.windows)
+
+
+def _children(pid):
+    path = f'/proc/{pid}/task/{pid}/children'
+    with open(path) as handle:
+        return [int(child) for child in handle.read().split()]
+
+
+def _command_line(pid):
+    with open(f'/proc/{pid}/cmdline', 'rb') as handle:
+        return handle.read().replace(b'\0', b' ').decode()
+
+
+def test_a_crashing_node_is_named_and_no_process_is_left_behind():
+    cli = subprocess.Popen([sys.executable, '-m', 'microball_ros.cli', 'experiment',
+                            '--duration', '60', '--speed', '1.5'],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for line in cli.stderr:
+            if 'the bench is running' in line:
+                break
+        children = _children(cli.pid)
+        assert len(children) == 5
+        estimator = next(pid for pid in children
+                         if 'three_stage_estimator' in _command_line(pid))
+        os.kill(estimator, signal.SIGKILL)
+        out, err = cli.communicate(timeout=60)
+    finally:
+        if cli.poll() is None:
+            cli.kill()
+    assert cli.returncode == 1
+    assert 'node three_stage_estimator exited with code -9' in err
+    deadline = time.monotonic() + 10
+    while any(os.path.exists(f'/proc/{pid}') and _state(pid) != 'Z' for pid in children):
+        assert time.monotonic() < deadline, 'node processes left running'
+        time.sleep(0.1)  # polling for process exit, not synchronising with the nodes
+
+
+def _state(pid):
+    try:
+        with open(f'/proc/{pid}/stat') as handle:
+            return handle.read().rsplit(')', 1)[1].split()[0]
+    except FileNotFoundError:
+        return 'gone'
