@@ -188,7 +188,7 @@ def test_measured_positions_carry_the_configured_noise_and_drift():
 
 def test_drift_velocity_is_an_ornstein_uhlenbeck_process_of_the_configured_rms():
     period, rms, correlation_time = 1 / 30, 5e-6, 2.0
-    drift = bench._drift(np.random.default_rng(3), 300_000, period, rms, correlation_time)
+    drift = bench.slider_drift(np.random.default_rng(3), 300_000, period, rms, correlation_time)
     velocity = np.diff(drift) / period  # mid-step velocities, smoothed by half a step only
     assert np.std(velocity) == pytest.approx(rms, rel=0.05)
     lag = round(correlation_time / period)
