@@ -143,12 +143,12 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
 
     The derivatives, the figures and the memory test use ``method`` (and ``epsilon`` for the
     three-stage method). The friction model of the three-stage method is fitted to three-stage
-    estimates with ``fit_epsilon`` instead, 0 by default: the amplitude filter deletes the
-    small harmonics that are all the curvature of L(v_rel) in the paper's regime, and a
-    straight line then fits perfectly with A and alpha far off. Measured on the 'paper'
-    scenario (40 s): epsilon 0.02 gives A = 65, alpha = 1.9, intervals that exclude the truth;
-    0.005 gives A = 1.51, alpha = 86; 0 gives A = 1.16 [1.07, 1.27], alpha = 115 [104, 125],
-    truth 1.2 and 110. Least squares averages the noise the filter would have removed.
+    estimates with ``fit_epsilon`` instead, 0 by default (nothing filtered): least-squares
+    intervals assume independent residuals, and the amplitude filter removes the noise and
+    leaves the residuals smooth and correlated, so its intervals come out too narrow.
+    Measured on the 'paper' scenario (40 s, exposure 1/60 s; truth A = 1.2, alpha = 110):
+    fitted at epsilon 0.02, A = 1.184 [1.179, 1.190], alpha = 111.6 [111.0, 112.1], which
+    miss the truth; at 0, A = 1.14 [1.05, 1.26], alpha = 116 [105, 127].
     ``exposure`` (s) is the camera's: the three-stage method then undoes the averaging of
     each frame over its exposure (estimation.three_stage).
     """

@@ -25,10 +25,10 @@ from scipy import fft, optimize, signal, stats
 # The three-stage options of the paper, and the ones recommended here (see three_stage).
 PAPER_OPTIONS = MappingProxyType({'whole_periods': False, 'slow_band': 0.0, 'edges': 'trim',
                                   'detrend': False, 'max_compensation': np.inf,
-                                  'exposure': 0.0})
+                                  'exposure': 0.0, 'noise_floor': False})
 RECOMMENDED_OPTIONS = MappingProxyType({'whole_periods': True, 'slow_band': 0.5, 'edges': 'trim',
                                         'detrend': False, 'max_compensation': 10.0,
-                                        'exposure': 0.0})
+                                        'exposure': 0.0, 'noise_floor': 4.0})
 
 # Normal one-sigma quantile, used to turn a Student-t interval into a one-sigma equivalent.
 _ONE_SIGMA_QUANTILE = stats.norm.cdf(1.0)
@@ -137,7 +137,17 @@ def _acceleration_gain(wd):
     return 1 / np.sinc(wd / (2 * np.pi)) ** 2
 
 
-def _filter_and_compensate(crude, dt, epsilon, gain, options):
+def _velocity_noise_shape(wd):
+    """Return the amplitude response |sin(w D)| of center-difference velocity to white noise."""
+    return np.abs(np.sin(wd))
+
+
+def _acceleration_noise_shape(wd):
+    """Return the amplitude response sin^2(w D/2) of the center second difference."""
+    return np.sin(wd / 2) ** 2
+
+
+def _filter_and_compensate(crude, dt, epsilon, gain, noise_shape, options):
     """Apply stages 2 and 3 to a center-difference signal; return it and the kept frequencies.
 
     The DC component (exact for a ramp) and the components below the slow band are always
@@ -152,8 +162,17 @@ def _filter_and_compensate(crude, dt, epsilon, gain, options):
         amplitude[-1] /= 2
     slow = frequencies < options['slow_band'] * (options['fundamental'] or 0.0)
     slow[0] = True
-    keep = slow | (amplitude > epsilon * amplitude[~slow].max(initial=0.0))
-    factor = gain(2 * np.pi * frequencies * dt)
+    threshold = np.full(amplitude.shape, epsilon * amplitude[~slow].max(initial=0.0))
+    wd = 2 * np.pi * frequencies * dt
+    if options['noise_floor'] and np.any(~slow):
+        # White position noise, seen through the difference: its amplitude follows the shape.
+        shape = noise_shape(wd)
+        usable = ~slow & (shape > 1e-3)
+        if np.any(usable):
+            level = np.median(amplitude[usable] / shape[usable])
+            threshold = np.minimum(threshold, options['noise_floor'] * level * shape)
+    keep = slow | (amplitude > threshold)
+    factor = gain(wd)
     keep &= np.isfinite(factor) & (factor <= options['max_compensation'])
     # Undo the exposure's averaging (sinc(f T), in phase) along with the differences' gain.
     factor = factor / np.sinc(frequencies * options['exposure'])
@@ -208,7 +227,7 @@ def _trend(t, x, frequency, order, dt):
 
 def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_periods=None,
                 slow_band=None, edges=None, detrend=None, max_compensation=None,
-                exposure=None, fundamental=None):
+                exposure=None, noise_floor=None, fundamental=None):
     """Estimate velocity and acceleration by the paper's three-stage algorithm (Fig. 3).
 
     1. center difference of the positions;
@@ -225,6 +244,18 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
       of ``fundamental`` (Hz; estimated from ``x`` by :func:`fundamental_frequency` if None)
       that best fits the sampling, so a periodic signal does not leak into extra FFT bins that
       the filter then cuts (the paper's "extra frequency components" of Section III-B);
+    * ``noise_floor``: False for the paper's rule. A number k lowers the filter's threshold to
+      k times the noise floor where that is below ``epsilon`` times the largest component:
+      a component is kept if it exceeds either. The floor follows white position noise
+      through the difference (|sin w D| for velocity, sin^2(w D/2) for acceleration), scaled
+      by the median of amplitude / shape above the slow band, which for a periodic record
+      analysed over whole periods is noise (the harmonics are a handful of bins). Noise
+      amplitudes are Rayleigh distributed, so a pure-noise bin exceeds k times their median
+      with probability 2^(-k^2), 1.5e-5 for k = 4. Why: a fixed epsilon deletes the
+      friction's real harmonics below epsilon of the fundamental. Measured by
+      bench/bench_estimation.py ('paper' scenario, 5 seeds, relative RMS error of v_rel /
+      a_slid at 1, 3, 10 um noise): epsilon 0.02 alone 2.3 / 2.3 %, 2.3 / 2.3 %, 2.1 / 3.4 %;
+      with k = 4: 0.46 / 0.43 %, 0.62 / 0.50 %, 1.3 / 2.7 %;
     * ``slow_band``: components below ``slow_band * fundamental`` are never filtered out. Slow
       drift of the slider is real motion with well under ``epsilon`` of the largest velocity
       amplitude, which the paper's filter deletes; position noise hardly reaches these
@@ -252,16 +283,18 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
     Measured (test_core_estimation: mean of 10 records of 19.7 s at 30 fps, 2.95 Hz, 2nd and
     3rd harmonics in v_rel, 200 um slider drift, 3 um noise; relative RMS error of v_rel /
     a_slid): paper 7.1 % / 6.3 % (leakage, worst at the ends); + whole periods 0.60 % / 0.72 %;
-    + slow band (recommended) 0.41 % / 0.72 %; circular edges with detrend=1 instead of trim
-    0.80 % / 0.77 % (drift that is not a polynomial still jumps at the wrap); center
-    difference alone 8.0 % / 4.5 %. Without noise or drift the recommended errors are 0.31 % /
-    0.70 %, and 0.05 % with epsilon = 0: what remains is harmonics under the threshold.
+    + slow band 0.41 % / 0.72 %; + noise floor (all recommended) 0.41 % / 0.68 % (this record's
+    harmonics are 5-10 %, above epsilon; see noise_floor for the bench's 1 % ones); circular
+    edges with detrend=1 instead of trim 0.80 % / 0.77 % (drift that is not a polynomial still
+    jumps at the wrap); center difference alone 8.0 % / 4.5 %. Without noise or drift the
+    slow-band errors are 0.31 % / 0.70 %, and 0.05 % with epsilon = 0: what remains is
+    harmonics under the threshold.
     """
     x = _positions(x, dt, 5)
     options = dict(PAPER_OPTIONS if paper else RECOMMENDED_OPTIONS)
     explicit = {'whole_periods': whole_periods, 'slow_band': slow_band, 'edges': edges,
                 'detrend': detrend, 'max_compensation': max_compensation,
-                'exposure': exposure}
+                'exposure': exposure, 'noise_floor': noise_floor}
     options.update({name: value for name, value in explicit.items() if value is not None})
     if options['edges'] not in ('trim', 'circular'):
         raise ValueError(f"edges must be 'trim' or 'circular', got {options['edges']!r}")
@@ -297,9 +330,10 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
         index = np.arange(1, length + 1)
 
     velocity, velocity_frequencies = _filter_and_compensate(
-        (after - before) / (2 * dt), dt, epsilon, _velocity_gain, options)
+        (after - before) / (2 * dt), dt, epsilon, _velocity_gain, _velocity_noise_shape, options)
     acceleration, acceleration_frequencies = _filter_and_compensate(
-        (after - 2 * middle + before) / dt ** 2, dt, epsilon, _acceleration_gain, options)
+        (after - 2 * middle + before) / dt ** 2, dt, epsilon, _acceleration_gain,
+        _acceleration_noise_shape, options)
     if order is not False:
         velocity += trend.deriv(1)(index * dt)
         acceleration += trend.deriv(2)(index * dt)

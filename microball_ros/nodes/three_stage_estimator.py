@@ -20,8 +20,8 @@ PARAMS = {
     'method': Param('three-stage', 'derivative estimator: ' + ', '.join(estimation.METHODS)),
     'epsilon': Param(0.0, 'three-stage amplitude-filter threshold (fraction of the largest '
                           'component) of the published estimates; 0 keeps every component, '
-                          'which the friction fit needs (the filter removes the friction '
-                          "law's small harmonics); the paper used 0.02-0.18", 0.0, 0.99),
+                          "which the friction fit's intervals need (they assume the noise is "
+                          'still there); the paper used 0.02-0.18', 0.0, 0.99),
     'exposure': Param(0.0, 'camera exposure time, s; the three-stage method undoes the '
                            'averaging of each frame over it (0: instantaneous samples)',
                       0.0, 1.0),
