@@ -205,7 +205,8 @@ def build_parser():
     experiment.add_argument('--speed', type=_positive_float, default=1.0,
                             help='simulation speed factor; != 1 publishes /clock and the '
                                  'nodes use sim time (default: 1, real time)')
-    experiment.add_argument('--output', help='bag directory to record every topic into')
+    experiment.add_argument('--output', help='bag directory to record every topic into (not '
+                                             'available yet: it comes with the bag recorder)')
     experiment.set_defaults(func=cmd_experiment)
 
     analyze = commands.add_parser(

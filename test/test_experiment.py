@@ -49,29 +49,51 @@ def _command_line(pid):
         return handle.read().replace(b'\0', b' ').decode()
 
 
-def test_a_crashing_node_is_named_and_no_process_is_left_behind():
+def _start_cli():
     cli = subprocess.Popen([sys.executable, '-m', 'microball_ros.cli', 'experiment',
                             '--duration', '60', '--speed', '1.5'],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in cli.stderr:
+        if 'the bench is running' in line:
+            break
+    children = _children(cli.pid)
+    assert len(children) == 5
+    return cli, children
+
+
+def _assert_all_gone(children):
+    deadline = time.monotonic() + 10
+    while any(os.path.exists(f'/proc/{pid}') and _state(pid) != 'Z' for pid in children):
+        assert time.monotonic() < deadline, 'node processes left running'
+        time.sleep(0.1)  # polling for process exit, not synchronising with the nodes
+
+
+def test_a_crashing_node_is_named_and_no_process_is_left_behind():
+    cli, children = _start_cli()
     try:
-        for line in cli.stderr:
-            if 'the bench is running' in line:
-                break
-        children = _children(cli.pid)
-        assert len(children) == 5
         estimator = next(pid for pid in children
                          if 'three_stage_estimator' in _command_line(pid))
         os.kill(estimator, signal.SIGKILL)
-        out, err = cli.communicate(timeout=60)
+        _, err = cli.communicate(timeout=60)
     finally:
         if cli.poll() is None:
             cli.kill()
     assert cli.returncode == 1
     assert 'node three_stage_estimator exited with code -9' in err
-    deadline = time.monotonic() + 10
-    while any(os.path.exists(f'/proc/{pid}') and _state(pid) != 'Z' for pid in children):
-        assert time.monotonic() < deadline, 'node processes left running'
-        time.sleep(0.1)  # polling for process exit, not synchronising with the nodes
+    _assert_all_gone(children)
+
+
+def test_ctrl_c_stops_every_node_and_exits_130():
+    cli, children = _start_cli()
+    try:
+        cli.send_signal(signal.SIGINT)
+        _, err = cli.communicate(timeout=60)
+    finally:
+        if cli.poll() is None:
+            cli.kill()
+    assert cli.returncode == 130
+    assert 'interrupted' in err and 'Traceback' not in err
+    _assert_all_gone(children)
 
 
 def _state(pid):

@@ -60,6 +60,13 @@ class WindowSettings:
         return None
 
 
+def _frequency_or_nan(stator, dt):
+    try:
+        return estimation.fundamental_frequency(stator, dt)
+    except ValueError:
+        return float('nan')
+
+
 class PositionWindower:
     """Accumulate samples and emit Window or Skip events.
 
@@ -69,9 +76,10 @@ class PositionWindower:
     * Once a run spans ``window_periods`` periods of its stator fundamental (re-estimated with
       every new sample once the run covers two periods), its first ``window_periods`` periods
       are emitted as a Window, and the run advances by ``hop_periods`` periods.
-    * If the fundamental of the window's first and second halves differ by more than
-      ``frequency_tolerance`` (a servo speed change, a sweep step), the first half is skipped
-      instead: the new frequency starts a new window.
+    * If the fundamental of any two-period segment of the window differs from the first
+      segment's by more than ``frequency_tolerance`` (a servo speed change, a sweep step),
+      the samples before that segment are skipped instead: the new frequency starts a new
+      window.
     * A stator that does not oscillate (amplitude below ``min_amplitude``, m) is skipped.
     """
 
@@ -122,19 +130,28 @@ class PositionWindower:
         dt = (data[-1, 0] - data[0, 0]) / (len(rows) - 1)
         duration = len(rows) * dt
         stator = data[:, 2]
-        if duration * settings.min_frequency >= settings.window_periods and \
-                np.ptp(stator) / 2 < settings.min_amplitude:
-            return self._drop(len(rows), 'stator not oscillating')
-        frequency = estimation.fundamental_frequency(stator, dt)
+        # Wait up to window_periods periods of the slowest frequency for an oscillation.
+        waited = duration * settings.min_frequency >= settings.window_periods
+        try:
+            if np.ptp(stator) / 2 < settings.min_amplitude:
+                raise ValueError('no oscillation')
+            frequency = estimation.fundamental_frequency(stator, dt)
+        except ValueError:
+            return self._drop(len(rows), 'stator not oscillating') if waited else []
         needed = int(round(settings.window_periods / (frequency * dt)))
         if duration * frequency < 2 or len(rows) < needed:
             return []
         window = data[:needed]
-        half = needed // 2
-        first = estimation.fundamental_frequency(window[:half, 2], dt)
-        second = estimation.fundamental_frequency(window[half:, 2], dt)
-        if abs(first - second) > settings.frequency_tolerance * max(first, second):
-            return self._drop(half, f'frequency changed ({first:.3f} -> {second:.3f} Hz)')
+        # Stationary? Compare the fundamental of consecutive two-period segments.
+        segments = max(2, int(settings.window_periods // 2))
+        bounds = np.linspace(0, needed, segments + 1).astype(int)
+        local = [_frequency_or_nan(window[a:b, 2], dt)
+                 for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+        for k in range(1, segments):
+            change = abs(local[k] - local[0]) / max(local[k], local[0])
+            if not change <= settings.frequency_tolerance:  # NaN too: a segment at rest
+                return self._drop(int(bounds[k]), f'frequency changed ({local[0]:.3f} -> '
+                                                  f'{local[k]:.3f} Hz)')
         frequency = estimation.fundamental_frequency(window[:, 2], dt)
         hop = max(1, int(round(settings.hop_periods / (frequency * dt))))
         del self._rows[:hop]
