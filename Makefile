@@ -61,6 +61,7 @@ bench: setup
 	$(BIN)/pip install -q --disable-pip-version-check -r requirements-bench.txt
 	$(BIN)/python bench/bench_estimation.py
 	$(BIN)/python bench/bench_tracking.py
+	$(BIN)/python bench/bench_nodes.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info
