@@ -10,6 +10,7 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test', 'test.*']),
+    package_data={package_name: ['config/*.xml']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -30,6 +31,7 @@ setup(
             'camera_tracker = microball_ros.nodes.camera_tracker:main',
             'three_stage_estimator = microball_ros.nodes.three_stage_estimator:main',
             'friction_identifier = microball_ros.nodes.friction_identifier:main',
+            'recorder = microball_ros.nodes.recorder:main',
         ],
     },
 )

@@ -92,9 +92,11 @@ def _interval(bounds):
 
 
 def load_positions(path):
-    """Load a position record from a CSV file (bags come with the bags work)."""
+    """Load a position record from a CSV file, a bag directory or an .mcap file."""
     if os.path.isdir(path) or path.endswith('.mcap'):
-        raise RecordError(f'{path}: reading bags is not supported yet; give a position CSV')
+        from microball_ros.bags.reader import read_positions
+
+        return read_positions(path)
     return read_positions_csv(path)
 
 

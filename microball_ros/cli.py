@@ -157,18 +157,171 @@ def cmd_experiment(args):
     from microball_ros.core import bench
     from microball_ros.experiment import NodeCrashed, run_experiment, summary_lines
 
-    if args.output:
-        raise CliError('--output (recording the run to a bag) is not available yet')
+    if args.output and os.path.exists(args.output) and os.listdir(args.output):
+        raise CliError(f'{args.output}: exists and is not empty; choose a new bag directory')
     bench.get_scenario(args.scenario)
     _progress(f'experiment: scenario {args.scenario!r}, {args.duration:g} s simulated at '
               f'{args.speed:g}x; starting the nodes ...')
     try:
-        monitor = run_experiment(args.scenario, args.duration, args.speed, progress=_progress)
+        monitor = run_experiment(args.scenario, args.duration, args.speed, progress=_progress,
+                                 output=args.output)
     except NodeCrashed as error:
         print(f'microball experiment: {error}', file=sys.stderr)
         return 1
     for line in summary_lines(monitor, args.scenario):
         print(line)
+    if args.output:
+        print(f'recorded every topic into {args.output}')
+    return 0
+
+
+def _spin_until_interrupted(node, done=lambda: False):
+    """Spin node in a fresh context until Ctrl-C (or done()); return True if interrupted."""
+    from rclpy.executors import SingleThreadedExecutor
+
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    try:
+        while not done():
+            executor.spin_once(timeout_sec=0.1)
+    except KeyboardInterrupt:
+        return True
+    finally:
+        executor.shutdown()
+    return False
+
+
+def cmd_record(args):
+    """Record topics to a bag until Ctrl-C (or --duration)."""
+    import time
+
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from microball_ros.nodes.recorder import Recorder
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        recorder = Recorder(context=context, parameter_overrides=[
+            Parameter('output', value=args.output),
+            Parameter('topics', value=args.topics or [''])])
+        _progress(f'recording {", ".join(args.topics) if args.topics else "every topic"} '
+                  f'into {args.output}; Ctrl-C stops')
+        end = None if args.duration is None else time.monotonic() + args.duration
+        _spin_until_interrupted(recorder, lambda: end is not None and time.monotonic() > end)
+        counts = recorder.close()
+        for topic in sorted(counts):
+            print(f'{topic}: {counts[topic]} messages, {recorder.lost.get(topic, 0)} lost')
+        recorder.destroy_node()
+    finally:
+        if context.ok():
+            rclpy.shutdown(context=context)
+    return 0
+
+
+def _pause_on_space():
+    """Return paused() toggled by the space bar when stdin is a terminal, else None."""
+    if not sys.stdin.isatty():
+        return None
+    import termios
+    import threading
+    import tty
+
+    state = {'paused': False}
+    fd = sys.stdin.fileno()
+    saved = termios.tcgetattr(fd)
+
+    def read_keys():
+        tty.setcbreak(fd)
+        try:
+            while True:
+                key = sys.stdin.read(1)
+                if not key:
+                    return
+                if key == ' ':
+                    state['paused'] = not state['paused']
+                    _progress('paused (space resumes)' if state['paused'] else 'resumed')
+        finally:
+            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+    threading.Thread(target=read_keys, daemon=True).start()
+    import atexit
+    atexit.register(termios.tcsetattr, fd, termios.TCSADRAIN, saved)
+    return lambda: state['paused']
+
+
+def cmd_play(args):
+    """Publish a bag's messages in recorded order."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from microball_ros.bags.reader import open_bag
+    from microball_ros.player import Player, use_lockstep_profile
+
+    bag = open_bag(args.bag)
+    if args.lockstep:
+        use_lockstep_profile()
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        player = Player(bag, topics=args.topics, clock=args.clock, context=context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(player)
+        paused = _pause_on_space()
+        total = sum(bag.topics[t].count for t in player.publishers_by_topic)
+        _progress(f'playing {total} messages of {args.bag} at {args.rate:g}x'
+                  f'{" lock-step" if args.lockstep else ""}'
+                  f'{"; space pauses" if paused else ""}; Ctrl-C stops')
+        while True:
+            count = player.play(executor, rate=args.rate, start_offset=args.start_offset,
+                                lockstep=args.lockstep, paused=paused,
+                                progress=lambda n, t: _progress(f'played {n} of {total} '
+                                                                f'messages, t = {t:.1f} s'))
+            print(f'played {count} messages')
+            if not args.loop:
+                break
+        player.destroy_node()
+    except KeyboardInterrupt:
+        print(f'stopped after {player.published} messages')
+    finally:
+        if context.ok():
+            rclpy.shutdown(context=context)
+    return 0
+
+
+def cmd_reprocess(args):
+    """Replay a bag's positions through fresh estimator and identifier nodes; record them."""
+    from microball_ros.experiment import NodeCrashed
+    from microball_ros.reprocess import reprocess
+
+    try:
+        counts = reprocess(args.bag, args.output, progress=_progress)
+    except NodeCrashed as error:
+        print(f'microball reprocess: {error}', file=sys.stderr)
+        return 1
+    for topic in sorted(counts):
+        print(f'{topic}: {counts[topic]} messages')
+    print(f'wrote {args.output}')
+    return 0
+
+
+def cmd_info(args):
+    """Print what a bag holds, like ros2 bag info."""
+    from microball_ros.bags.reader import open_bag
+
+    for line in open_bag(args.bag).info_lines():
+        print(line)
+    return 0
+
+
+def cmd_reindex(args):
+    """Rebuild a bag's summary and metadata.yaml after its recorder died."""
+    from microball_ros.bags.reader import reindex
+
+    counts = reindex(args.bag)
+    for topic in sorted(counts):
+        print(f'{topic}: {counts[topic]} messages recovered')
     return 0
 
 
@@ -205,15 +358,60 @@ def build_parser():
     experiment.add_argument('--speed', type=_positive_float, default=1.0,
                             help='simulation speed factor; != 1 publishes /clock and the '
                                  'nodes use sim time (default: 1, real time)')
-    experiment.add_argument('--output', help='bag directory to record every topic into (not '
-                                             'available yet: it comes with the bag recorder)')
+    experiment.add_argument('--output', help='bag directory to record every topic into')
     experiment.set_defaults(func=cmd_experiment)
+
+    record = commands.add_parser(
+        'record', help='record topics into a rosbag2 MCAP bag',
+        description='Record topics (all, or the ones named) as serialized messages into a '
+                    'rosbag2 bag directory (metadata.yaml + .mcap) until Ctrl-C.')
+    record.add_argument('--output', required=True, help='bag directory to create')
+    record.add_argument('--topics', nargs='+', metavar='T', help='topics (default: all)')
+    record.add_argument('--duration', type=_positive_float, help='stop after S wall seconds')
+    record.set_defaults(func=cmd_record)
+
+    play = commands.add_parser(
+        'play', help="publish a bag's messages",
+        description='Publish the recorded messages in recorded order with their recorded QoS.')
+    play.add_argument('bag', help='bag directory or .mcap file')
+    play.add_argument('--rate', type=_positive_float, default=1.0, help='speed (default: 1)')
+    play.add_argument('--clock', action='store_true', help='publish /clock from bag time')
+    play.add_argument('--loop', action='store_true', help='start again at the end')
+    play.add_argument('--topics', nargs='+', metavar='T', help='topics (default: all)')
+    play.add_argument('--start-offset', type=float, default=0.0, metavar='S',
+                      help='skip the first S seconds of the bag')
+    play.add_argument('--lockstep', action='store_true',
+                      help='publish each message only after every matched reliable '
+                           'subscriber acknowledged the previous one')
+    play.set_defaults(func=cmd_play)
+
+    again = commands.add_parser(
+        'reprocess', help='replay a bag through fresh estimator and identifier nodes',
+        description="Replay the bag's /tracking/positions lock-step through fresh "
+                    'three_stage_estimator and friction_identifier processes and record '
+                    'their outputs (byte for byte the recorded ones).')
+    again.add_argument('bag', help='bag directory or .mcap file')
+    again.add_argument('--output', required=True, help='bag directory to create')
+    again.set_defaults(func=cmd_reprocess)
+
+    info = commands.add_parser('info', help='what a bag holds (like ros2 bag info)',
+                               description='Print the files, duration and topics of a bag.')
+    info.add_argument('bag', help='bag directory or .mcap file')
+    info.set_defaults(func=cmd_info)
+
+    reindex = commands.add_parser(
+        'reindex', help='repair a bag whose recorder died',
+        description='Rebuild the summary and metadata.yaml of a bag from its complete chunks '
+                    '(the original file is kept as .truncated).')
+    reindex.add_argument('bag', help='bag directory')
+    reindex.set_defaults(func=cmd_reindex)
 
     analyze = commands.add_parser(
         'analyze', help='three-stage estimation, memory test and friction fit',
         description='Analyse a position CSV: velocity and acceleration, memory test, '
                     'Langevin friction model and its validation by simulation.')
-    analyze.add_argument('input', help='position CSV (time,stator_position,slider_position)')
+    analyze.add_argument('input', help='position CSV (time,stator_position,slider_position), '
+                                       'bag directory or .mcap file')
     analyze.add_argument('--epsilon', type=_fraction, default=0.02,
                          help='amplitude-filter threshold, fraction of the largest FFT '
                               'component (default: 0.02)')

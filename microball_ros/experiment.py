@@ -20,6 +20,7 @@ from microball_msgs.msg import BenchState, DerivativeEstimate, FrictionModel, Tr
 import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+import yaml
 
 from microball_ros.core import bench, rig
 from microball_ros.nodes.common import DATA_QOS
@@ -39,28 +40,22 @@ def _die_with_parent():
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
-def _ros_value(value):
-    if isinstance(value, bool):
-        return 'true' if value else 'false'
-    if isinstance(value, (list, tuple)):
-        return '[' + ','.join(_ros_value(v) for v in value) + ']'
-    if isinstance(value, str):
-        return value
-    return repr(value)
+def node_parameters(scenario_name, duration, speed, output=None):
+    """Return node name -> parameter dict for an experiment on the named scenario.
 
-
-def node_parameters(scenario_name, duration, speed):
-    """Return node name -> parameter dict for an experiment on the named scenario."""
+    With ``output`` a recorder joins, recording every topic, and the bag's metadata keeps the
+    estimator's and identifier's parameters (for ``microball reprocess``).
+    """
     scenario = bench.get_scenario(scenario_name)
     rois = rig.suggested_rois(scenario)
     sim_time = {'use_sim_time': True} if speed != 1.0 else {}
-    return {
+    parameters = {
         'servo_commander': {'frequency': scenario.frequency,
                             'amplitude': scenario.stator_amplitude, 'ramp_time': 1.0,
                             **sim_time},
         'bench_simulator': {'scenario': scenario_name, 'speed': float(speed),
                             'publish_clock': speed != 1.0, 'duration': float(duration),
-                            'wait_for_subscribers': True},
+                            'wait_for_subscribers': 2 if output else 1},
         'camera_tracker': {'slider_roi': list(rois['slider']),
                            'stator_roi': list(rois['stator']),
                            'meters_per_pixel': rig.camera_for(scenario).meters_per_pixel,
@@ -68,11 +63,21 @@ def node_parameters(scenario_name, duration, speed):
         'three_stage_estimator': {'exposure': rig.camera_for(scenario).exposure, **sim_time},
         'friction_identifier': dict(sim_time),
     }
+    if output:
+        kept = {f'microball.{name}': yaml.safe_dump(
+            {k: v for k, v in parameters[name].items() if k != 'use_sim_time'})
+            for name in ('three_stage_estimator', 'friction_identifier')}
+        parameters['recorder'] = {'output': output, 'custom_data': yaml.safe_dump(kept)}
+    return parameters
 
 
 # Every subscription the pipeline needs before the bench's first frame: topic -> count
 # (the monitor of this process counts as one).
 _READY = {'camera/image_raw': 1, 'tracking/positions': 2, 'estimation/derivatives': 2}
+# ... and with a recorder, one more on each topic, the bench's included.
+_READY_RECORDING = {'camera/image_raw': 2, 'tracking/positions': 3,
+                    'estimation/derivatives': 3, 'friction/model': 2, 'bench/ground_truth': 2,
+                    'servo/command': 1}
 
 
 class _Processes:
@@ -84,10 +89,12 @@ class _Processes:
         self.procs = {}
 
     def start(self, name):
-        """Start one node process, its output going to its log file."""
-        args = [sys.executable, '-m', f'microball_ros.nodes.{name}', '--ros-args']
-        for key, value in self.parameters[name].items():
-            args += ['-p', f'{key}:={_ros_value(value)}']
+        """Start one node process with its parameters file; its output goes to its log."""
+        params = os.path.join(self.log_dir, f'{name}.params.yaml')
+        with open(params, 'w') as handle:
+            yaml.safe_dump({'/**': {'ros__parameters': self.parameters[name]}}, handle)
+        args = [sys.executable, '-m', f'microball_ros.nodes.{name}', '--ros-args',
+                '--params-file', params]
         log = open(os.path.join(self.log_dir, f'{name}.log'), 'w')
         self.procs[name] = (subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
                                              stdin=subprocess.DEVNULL,
@@ -195,7 +202,8 @@ def summary_lines(monitor, scenario_name):
     ]
 
 
-def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=3.0):
+def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=3.0,
+                   output=None):
     """Run the experiment; return the monitor (counts, windows, models) when it is done.
 
     Done means: the bench has published every frame of ``duration``, each was tracked, and
@@ -205,7 +213,8 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
     scenario = bench.get_scenario(scenario_name)
     fps = rig.camera_for(scenario).fps
     expected_frames = math.floor(duration * fps + 1e-9)
-    parameters = node_parameters(scenario_name, duration, speed)
+    parameters = node_parameters(scenario_name, duration, speed, output)
+    ready = _READY_RECORDING if output else _READY
     log_dir = tempfile.mkdtemp(prefix='microball-experiment-')
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -226,11 +235,11 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
 
         # Downstream first; the bench starts once every subscription is in place, and holds
         # its first frame until its own subscribers are matched, so no frame is lost.
-        for name in NODES:
+        for name in NODES + (('recorder',) if output else ()):
             if name != 'bench_simulator':
                 processes.start(name)
         spin_until(lambda: all(node.count_subscribers(topic) >= count
-                               for topic, count in _READY.items()), 'the nodes to connect')
+                               for topic, count in ready.items()), 'the nodes to connect')
         processes.start('bench_simulator')
         progress('nodes connected; the bench is running')
         next_report = time.monotonic() + 2.0

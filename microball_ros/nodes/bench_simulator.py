@@ -32,9 +32,10 @@ PARAMS = {
     'motor_lag': Param(0.05, 'motor speed lag (first-order time constant), s', 0.0, 5.0,
                        read_only=True),
     'frame_id': Param('camera', 'frame_id of the images and ground truth', read_only=True),
-    'wait_for_subscribers': Param(False, 'hold the first frame until the images and the '
-                                         'ground truth each have a matched subscriber and a '
-                                         'servo command has arrived (a reproducible start)'),
+    'wait_for_subscribers': Param(0, 'hold the first frame until the images and the ground '
+                                     'truth each have this many matched subscribers and a '
+                                     'servo command has arrived (a reproducible start); 0 '
+                                     'starts at once', 0, 100),
 }
 
 
@@ -93,9 +94,10 @@ class BenchSimulator(Node):
                                f'{msg.frequency:g} Hz, ramp {msg.ramp_time:g} s')
 
     def _on_frame(self):
-        if self._rig.index == 0 and self._values['wait_for_subscribers'] and (
-                self._servo is None or self._images.get_subscription_count() < 1
-                or self._truth.get_subscription_count() < 1):
+        wanted = self._values['wait_for_subscribers']
+        if self._rig.index == 0 and wanted and (
+                self._servo is None or self._images.get_subscription_count() < wanted
+                or self._truth.get_subscription_count() < wanted):
             return
         duration = self._values['duration']
         if duration and self._rig.index / self._rig.config.fps >= duration:

@@ -1,0 +1,177 @@
+"""recorder: subscribe to topics as serialized messages and write a rosbag2 MCAP bag.
+
+Topics are discovered while recording (all of them, or the ones named in ``topics``); each is
+subscribed with ``raw=True`` so messages are written as received, with no decode/encode round
+trip, and with a QoS that matches its publishers (reliable if they all are, transient local
+if they all are), as rosbag2 does. Log time is the receive time; publish time is the message's
+header stamp where its type starts with a std_msgs/Header. The bag is flushed about once a
+second, so a killed recorder loses at most that much (``microball reindex`` repairs it).
+Lost messages are counted from the middleware's message-lost events.
+"""
+
+import importlib
+import struct
+
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import SubscriptionEventCallbacks
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+import yaml
+
+from microball_ros.bags.schema import qos_profiles_yaml
+from microball_ros.bags.writer import BagWriter
+from microball_ros.nodes.common import Param, declare_parameters, run
+
+IGNORED_TOPICS = ('/rosout', '/parameter_events')
+
+PARAMS = {
+    'output': Param('', 'bag directory to create', read_only=True),
+    'topics': Param([''], "topics to record; [''] records every topic", read_only=True),
+    'compression': Param('zstd', 'MCAP chunk compression: zstd, lz4 or none',
+                         read_only=True),
+    'discovery_period': Param(0.5, 'how often to look for new topics, s', 0.05, 60.0),
+    'flush_period': Param(1.0, 'how often to make the bag durable on disk, s', 0.05, 60.0),
+    'custom_data': Param('', 'YAML mapping of strings kept in metadata.yaml custom_data',
+                         read_only=True),
+}
+
+
+def check_parameters(values):
+    """Return None if the parameter values are consistent, else a one-line reason."""
+    if not values['output']:
+        return 'output (the bag directory) is required'
+    if values['compression'] not in ('zstd', 'lz4', 'none'):
+        return f"compression must be zstd, lz4 or none, got {values['compression']!r}"
+    try:
+        custom = yaml.safe_load(values['custom_data']) if values['custom_data'] else {}
+    except yaml.YAMLError:
+        return 'custom_data is not YAML'
+    if not isinstance(custom, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in custom.items()):
+        return 'custom_data must be a YAML mapping of strings to strings'
+    return None
+
+
+def message_class(type_name):
+    """Import the Python class of 'pkg/msg/Type'; raise ValueError if it is not installed."""
+    package, _, name = type_name.partition('/msg/')
+    try:
+        return getattr(importlib.import_module(f'{package}.msg'), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f'message type {type_name} is not installed') from None
+
+
+def header_stamp_reader(message_type):
+    """Return a function CDR bytes -> header stamp (ns), or None if the type has no header.
+
+    A std_msgs/Header first field puts builtin_interfaces/Time (int32 sec, uint32 nanosec)
+    right after the 4-byte CDR encapsulation header, so the stamp is read without decoding.
+    """
+    fields = list(message_type.get_fields_and_field_types().values())
+    if not fields or fields[0] != 'std_msgs/Header':
+        return None
+
+    def stamp(data):
+        little = data[1] == 1  # encapsulation CDR_LE
+        sec, nanosec = struct.unpack_from('<iI' if little else '>iI', data, 4)
+        return sec * 1_000_000_000 + nanosec
+    return stamp
+
+
+def subscription_qos(publisher_profiles):
+    """Return the QoS that receives everything the publishers offer (rosbag2's adaptation)."""
+    reliable = bool(publisher_profiles) and all(
+        q.reliability == ReliabilityPolicy.RELIABLE for q in publisher_profiles)
+    latched = bool(publisher_profiles) and all(
+        q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in publisher_profiles)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable
+                      else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                      else DurabilityPolicy.VOLATILE)
+
+
+class Recorder(Node):
+    """Record topics to a rosbag2 MCAP bag."""
+
+    def __init__(self, **kwargs):
+        super().__init__('recorder', **kwargs)
+        self._values = declare_parameters(self, PARAMS, check_parameters)
+        values = self._values
+        compression = None if values['compression'] == 'none' else values['compression']
+        self._writer = BagWriter(values['output'], compression=compression)
+        if values['custom_data']:
+            self._writer.custom_data.update(yaml.safe_load(values['custom_data']))
+        self._wanted = {t for t in values['topics'] if t}
+        self._recorded = {}
+        self._closed = None
+        self.lost = {}
+        self.matched = {}
+        self._receive_clock = Clock(clock_type=ClockType.SYSTEM_TIME)
+        self.create_timer(values['discovery_period'], self._discover)
+        self.create_timer(values['flush_period'], self._writer.flush)
+        self._discover()
+
+    @property
+    def counts(self):
+        """Return messages written per topic."""
+        return dict(self._writer.counts)
+
+    def _discover(self):
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._recorded or topic in IGNORED_TOPICS:
+                continue
+            if self._wanted and topic not in self._wanted:
+                continue
+            self._subscribe(topic, types[0])
+
+    def _subscribe(self, topic, type_name):
+        try:
+            message_type = message_class(type_name)
+        except ValueError as error:
+            self.get_logger().warning(f'not recording {topic}: {error}', once=True)
+            self._recorded[topic] = None
+            return
+        offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+        self._writer.add_topic(topic, type_name, qos_profiles_yaml(offered))
+        stamp = header_stamp_reader(message_type)
+        self.lost[topic] = 0
+
+        def on_message(data, topic=topic, stamp=stamp):
+            received = self._receive_clock.now().nanoseconds
+            self._writer.write(topic, data, received, stamp(data) if stamp else received)
+
+        def on_lost(info, topic=topic):
+            self.lost[topic] += info.total_count_change
+
+        def on_matched(info, topic=topic):
+            self.matched[topic] = info.current_count
+
+        self._recorded[topic] = self.create_subscription(
+            message_type, topic, on_message, subscription_qos(offered), raw=True,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost,
+                                                       matched=on_matched))
+        self.get_logger().info(f'recording {topic} ({type_name})')
+
+    def close(self):
+        """Finish the bag (summary, metadata.yaml) once; return per-topic counts."""
+        if self._closed is None:
+            self._closed = self._writer.close()
+        return self._closed
+
+    def destroy_node(self):
+        """Finish the bag, report counts and losses, then destroy the node."""
+        counts = self.close()
+        for topic in sorted(counts):
+            print(f'{topic}: {counts[topic]} messages, {self.lost.get(topic, 0)} lost',
+                  flush=True)
+        super().destroy_node()
+
+
+def main(args=None):
+    """Run the node (console script recorder)."""
+    return run(Recorder, args)
+
+
+if __name__ == '__main__':
+    main()
