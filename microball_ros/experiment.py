@@ -74,10 +74,10 @@ def node_parameters(scenario_name, duration, speed, output=None):
 # Every subscription the pipeline needs before the bench's first frame: topic -> count
 # (the monitor of this process counts as one).
 _READY = {'camera/image_raw': 1, 'tracking/positions': 2, 'estimation/derivatives': 2}
-# ... and with a recorder, one more on each topic, the bench's included.
-_READY_RECORDING = {'camera/image_raw': 2, 'tracking/positions': 3,
-                    'estimation/derivatives': 3, 'friction/model': 2, 'bench/ground_truth': 2,
-                    'servo/command': 1}
+# ... and with a recorder, one more on each topic that has its publisher already; the bench
+# waits for the recorder on its own topics (wait_for_subscribers = 2).
+_READY_RECORDING = {'camera/image_raw': 1, 'tracking/positions': 3,
+                    'estimation/derivatives': 3, 'friction/model': 2, 'servo/command': 1}
 
 
 class _Processes:

@@ -168,3 +168,41 @@ def test_killed_recorder_leaves_a_bag_that_reindex_repairs(tmp_path):
     assert data == sent[:recovered]
     assert any(name.endswith('.truncated') for name in os.listdir(bag_dir)) or recovered == 300
     assert np.isfinite(bag.start_ns)
+
+
+SAMPLE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'bags',
+                      'paper_sample')
+
+
+def _close(a, b):
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
+    if isinstance(a, list):
+        return len(a) == len(b) and all(_close(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, float) and isinstance(b, float):
+        return math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
+    return a == b
+
+
+def test_sample_bag_analyses_to_its_expected_result(tmp_path):
+    out = tmp_path / 'analysis.json'
+    assert main(['analyze', SAMPLE, '--json', str(out)]) == 0
+    result = json.loads(out.read_text())
+    expected = json.loads(open(SAMPLE + '.expected.json').read())
+    for data in (result, expected):
+        data.pop('source')
+    assert _close(result, expected)
+    assert result['memoryless'] is True
+    low, high = result['model']['A_ci95']
+    assert low <= 1.2 <= high
+
+
+def test_sample_bag_reprocesses_to_its_recorded_outputs(tmp_path):
+    out = str(tmp_path / 'again')
+    result = subprocess.run([sys.executable, '-m', 'microball_ros.cli', 'reprocess', SAMPLE,
+                             '--output', out], capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr[-2000:]
+    recorded, again = open_bag(SAMPLE), open_bag(out)
+    for topic in ('/estimation/derivatives', '/friction/model'):
+        assert [m.data for m in again.messages([topic])] == \
+            [m.data for m in recorded.messages([topic])]

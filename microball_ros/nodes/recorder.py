@@ -1,11 +1,12 @@
 """recorder: subscribe to topics as serialized messages and write a rosbag2 MCAP bag.
 
 Topics are discovered while recording (all of them, or the ones named in ``topics``); each is
-subscribed with ``raw=True`` so messages are written as received, with no decode/encode round
-trip, and with a QoS that matches its publishers (reliable if they all are, transient local
-if they all are), as rosbag2 does. Log time is the receive time; publish time is the message's
-header stamp where its type starts with a std_msgs/Header. The bag is flushed about once a
-second, so a killed recorder loses at most that much (``microball reindex`` repairs it).
+subscribed once it has a publisher, with ``raw=True`` so messages are written as received
+(no decode/encode round trip), and with a QoS that matches its publishers (reliable if they
+all are, transient local if they all are), as rosbag2 does. Log time is the receive time;
+publish time is the message's header stamp where its type starts with a std_msgs/Header.
+The bag is flushed about once a second, so a killed recorder loses at most that much
+(``microball reindex`` repairs it).
 Lost messages are counted from the middleware's message-lost events.
 """
 
@@ -80,10 +81,8 @@ def header_stamp_reader(message_type):
 
 def subscription_qos(publisher_profiles):
     """Return the QoS that receives everything the publishers offer (rosbag2's adaptation)."""
-    reliable = bool(publisher_profiles) and all(
-        q.reliability == ReliabilityPolicy.RELIABLE for q in publisher_profiles)
-    latched = bool(publisher_profiles) and all(
-        q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in publisher_profiles)
+    reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in publisher_profiles)
+    latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in publisher_profiles)
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
                       reliability=ReliabilityPolicy.RELIABLE if reliable
                       else ReliabilityPolicy.BEST_EFFORT,
@@ -133,6 +132,8 @@ class Recorder(Node):
             self._recorded[topic] = None
             return
         offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+        if not offered:
+            return  # subscribe once a publisher shows its QoS (next discovery round)
         self._writer.add_topic(topic, type_name, qos_profiles_yaml(offered))
         stamp = header_stamp_reader(message_type)
         self.lost[topic] = 0
