@@ -408,7 +408,7 @@ def build_parser():
 
     analyze = commands.add_parser(
         'analyze', help='three-stage estimation, memory test and friction fit',
-        description='Analyse a position CSV: velocity and acceleration, memory test, '
+        description='Analyse a position CSV or a bag: velocity and acceleration, memory test, '
                     'Langevin friction model and its validation by simulation.')
     analyze.add_argument('input', help='position CSV (time,stator_position,slider_position), '
                                        'bag directory or .mcap file')

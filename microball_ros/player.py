@@ -12,11 +12,11 @@ import os
 import time
 
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from microball_ros import conversions
 from microball_ros.bags.schema import parse_qos_profiles
+from microball_ros.nodes.common import matching_qos
 from microball_ros.nodes.recorder import message_class
 
 LOCKSTEP_PROFILE = os.path.join(os.path.dirname(os.path.abspath(__file__)), 'config',
@@ -44,11 +44,7 @@ def replay_qos(qos_profiles_yaml):
     best_effort = any(p.get('reliability') in ('best_effort', 2) for p in profiles)
     latched = bool(profiles) and all(
         p.get('durability') in ('transient_local', 1) for p in profiles)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
-                      reliability=ReliabilityPolicy.BEST_EFFORT if best_effort
-                      else ReliabilityPolicy.RELIABLE,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                      else DurabilityPolicy.VOLATILE)
+    return matching_qos(not best_effort, latched)
 
 
 class Player(Node):

@@ -25,6 +25,15 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def matching_qos(reliable, latched):
+    """Return a data-path QoS that is reliable / transient local as asked (recorder, player)."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DATA_QOS.depth,
+                      reliability=ReliabilityPolicy.RELIABLE if reliable
+                      else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
+                      else DurabilityPolicy.VOLATILE)
+
+
 @dataclass(frozen=True)
 class Param:
     """A parameter: default, description, and optional numeric range (inclusive)."""

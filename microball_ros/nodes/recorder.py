@@ -16,12 +16,12 @@ import struct
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 import yaml
 
 from microball_ros.bags.schema import qos_profiles_yaml
 from microball_ros.bags.writer import BagWriter
-from microball_ros.nodes.common import Param, declare_parameters, run
+from microball_ros.nodes.common import Param, declare_parameters, matching_qos, run
 
 IGNORED_TOPICS = ('/rosout', '/parameter_events')
 
@@ -83,11 +83,7 @@ def subscription_qos(publisher_profiles):
     """Return the QoS that receives everything the publishers offer (rosbag2's adaptation)."""
     reliable = all(q.reliability == ReliabilityPolicy.RELIABLE for q in publisher_profiles)
     latched = all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in publisher_profiles)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
-                      reliability=ReliabilityPolicy.RELIABLE if reliable
-                      else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                      else DurabilityPolicy.VOLATILE)
+    return matching_qos(reliable, latched)
 
 
 class Recorder(Node):
