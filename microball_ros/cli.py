@@ -264,6 +264,7 @@ def cmd_play(args):
         use_lockstep_profile()
     context = rclpy.Context()
     rclpy.init(context=context)
+    player = None
     try:
         player = Player(bag, topics=args.topics, clock=args.clock, context=context)
         executor = SingleThreadedExecutor(context=context)
@@ -283,7 +284,7 @@ def cmd_play(args):
                 break
         player.destroy_node()
     except KeyboardInterrupt:
-        print(f'stopped after {player.published} messages')
+        print(f'stopped after {player.published if player else 0} messages')
     finally:
         if context.ok():
             rclpy.shutdown(context=context)
