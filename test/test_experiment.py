@@ -1,6 +1,7 @@
 """`microball experiment`: every node a separate process over DDS, end to end."""
 
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -61,11 +62,19 @@ def _start_cli():
     return cli, children
 
 
-def _assert_all_gone(children):
-    deadline = time.monotonic() + 10
-    while any(os.path.exists(f'/proc/{pid}') and _state(pid) != 'Z' for pid in children):
-        assert time.monotonic() < deadline, 'node processes left running'
-        time.sleep(0.1)  # polling for process exit, not synchronising with the nodes
+def _assert_all_gone(children, timeout=10.0):
+    """Wait (pidfd: no polling loop) until every child process has exited."""
+    deadline = time.monotonic() + timeout
+    for pid in children:
+        try:
+            fd = os.pidfd_open(pid)
+        except ProcessLookupError:
+            continue  # already gone and reaped
+        try:
+            ready, _, _ = select.select([fd], [], [], max(0.0, deadline - time.monotonic()))
+            assert ready or _state(pid) in ('Z', 'gone'), f'node process {pid} left running'
+        finally:
+            os.close(fd)
 
 
 def test_a_crashing_node_is_named_and_no_process_is_left_behind():
