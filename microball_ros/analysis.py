@@ -16,6 +16,12 @@ from microball_ros.core.records import PositionRecord, RecordError, read_positio
 
 METHODS = ('three-stage', 'forward', 'lowpass-forward')
 MIN_PERIODS = 4
+# The Fig. 9 validation simulates the first VALIDATION_PERIODS stator periods of the window
+# (friction.validate): a settled periodic response needs no more, and the integrator's cost
+# grows with the record (about 75 s for an hour if it covered everything).
+VALIDATION_PERIODS = 20
+# A stator period further than this from the median period is not steady (steady_periods).
+STEADY_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -75,6 +81,8 @@ class AnalysisResult:
                             'ci95': {name: _interval(b) for name, b in fit.ci95.items()},
                             'aic': fit.aic, 'bic': fit.bic} for fit in self.comparison],
             'validation': {
+                'periods': min(VALIDATION_PERIODS, len(self.window.time) * self.sample_period
+                               * self.fundamental_frequency),
                 'slider_amplitude_simulated': self.validation.slider_amplitude_simulated,
                 'slider_amplitude_measured': self.validation.slider_amplitude_measured,
                 'phase_simulated': self.validation.phase_simulated,
@@ -91,13 +99,53 @@ def _interval(bounds):
     return [_finite_or_none(b) for b in bounds]
 
 
-def load_positions(path):
-    """Load a position record from a CSV file, a bag directory or an .mcap file."""
-    if os.path.isdir(path) or path.endswith('.mcap'):
-        from microball_ros.bags.reader import read_positions
+def _is_bag(path):
+    return os.path.isdir(path) or path.endswith('.mcap')
 
-        return read_positions(path)
-    return read_positions_csv(path)
+
+def load_positions(path, slider_roi=None, stator_roi=None, meters_per_pixel=None,
+                   progress=None):
+    """Load a position record from a CSV file, a bag directory or an .mcap file.
+
+    A bag's /tracking/positions are read; a bag with only /camera/image_raw is tracked first
+    (frames.track_bag), with the ROIs and scale given here, else those the recording kept.
+    ``progress(text)`` reports the tracking.
+    """
+    if not _is_bag(path):
+        return read_positions_csv(path)
+    from microball_ros.bags.reader import (
+                                           IMAGES_TOPIC,
+                                           POSITIONS_TOPIC,
+                                           BagError,
+                                           open_bag,
+                                           read_positions,
+    )
+
+    bag = open_bag(path)
+    if POSITIONS_TOPIC in bag.topics or IMAGES_TOPIC not in bag.topics:
+        if POSITIONS_TOPIC not in bag.topics:
+            raise BagError(f'{path}: bag has neither {POSITIONS_TOPIC} nor {IMAGES_TOPIC}; it '
+                           f'has: {", ".join(sorted(bag.topics)) or "no topics"}')
+        return read_positions(bag)
+    from microball_ros.frames import track_bag, tracker_parameters
+
+    parameters = tracker_parameters(bag, slider_roi, stator_roi, meters_per_pixel)
+    if progress is not None:
+        progress(f'{path} has only camera frames: tracking {bag.topics[IMAGES_TOPIC].count} '
+                 f"frames (slider ROI {parameters['slider_roi']}, stator ROI "
+                 f"{parameters['stator_roi']}, {parameters['meters_per_pixel']:.6g} m/px) ...")
+    return track_bag(bag, parameters,
+                     None if progress is None else lambda n: progress(f'tracked {n} frames'))
+
+
+def recorded_exposure(path):
+    """Return the camera exposure (s) a bag's recording gave its estimator, or None."""
+    if not _is_bag(path):
+        return None
+    from microball_ros.bags.reader import open_bag, recorded_parameters
+
+    exposure = recorded_parameters(open_bag(path), 'three_stage_estimator').get('exposure')
+    return None if exposure is None else float(exposure)
 
 
 def longest_valid_run(valid):
@@ -111,11 +159,38 @@ def longest_valid_run(valid):
     return int(starts[best]), int(stops[best])
 
 
-def _steady_window(record, source):
+def steady_periods(time, stator, tolerance=STEADY_TOLERANCE):
+    """Return (start, stop) of the longest stretch of steady stator periods (stop exclusive).
+
+    The periods are the intervals between upward crossings of the stator's median (linearly
+    interpolated); a period is steady within ``tolerance`` of their median. A servo starting
+    (its crank speed ramps up) or stopping makes longer periods at the ends of a run, and the
+    FFT of the whole window assumes one steady oscillation: on the sample bag, the first two
+    periods of start-up gave velocity errors of 10 % there against 1.2 % in steady motion.
+    Return the whole range if every period is steady or there are fewer than three crossings.
+    """
+    x = np.asarray(stator, dtype=float) - np.median(stator)
+    up = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
+    if len(up) < 3:
+        return 0, len(x)
+    crossings = time[up] - x[up] * (time[up + 1] - time[up]) / (x[up + 1] - x[up])
+    periods = np.diff(crossings)
+    steady = np.abs(periods / np.median(periods) - 1.0) <= tolerance
+    if steady.all():
+        return 0, len(x)
+    first, last = longest_valid_run(steady)
+    return int(up[first]) + 1, int(up[last]) + 1
+
+
+def _valid_window(record, source):
     """Return the longest stretch of the record where both marks were measured."""
     start, stop = longest_valid_run(record.valid)
     if stop - start < 3:
         raise RecordError(f'{source}: no stretch of valid samples (both marks measured)')
+    return _stretch(record, start, stop)
+
+
+def _stretch(record, start, stop):
     span = slice(start, stop)
     return PositionRecord(time=record.time[span], stator_position=record.stator_position[span],
                           slider_position=record.slider_position[span],
@@ -144,21 +219,29 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
     """Run the whole analysis on a record; raise RecordError on data that cannot be analysed.
 
     The derivatives, the figures and the memory test use ``method`` (and ``epsilon`` for the
-    three-stage method). The friction model of the three-stage method is fitted to three-stage
-    estimates with ``fit_epsilon`` instead, 0 by default (nothing filtered): least-squares
-    intervals assume independent residuals, and the amplitude filter removes the noise and
-    leaves the residuals smooth and correlated, so its intervals come out too narrow.
-    Measured on the 'paper' scenario (40 s, exposure 1/60 s; truth A = 1.2, alpha = 110):
-    fitted at epsilon 0.02, A = 1.184 [1.179, 1.190], alpha = 111.6 [111.0, 112.1], which
-    miss the truth; at 0, A = 1.14 [1.05, 1.26], alpha = 116 [105, 127].
+    three-stage method). The friction model of the three-stage method is fitted to the
+    velocity at ``epsilon`` and the acceleration at ``fit_epsilon``, 0 by default (nothing
+    filtered). The two play different parts in a least-squares fit a = L(v):
+    - the acceleration is the response: its noise does not bias the fit, and the intervals
+      assume it independent from sample to sample. The amplitude filter leaves the residuals
+      smooth and correlated, and the intervals come out too narrow;
+    - the velocity is the regressor: its noise biases the fit (errors in variables). The
+      unfiltered velocity's noise (0.14 mm/s, 1.5 % of its amplitude) pulls A down and alpha
+      up along their correlated valley while A alpha / 3 stays put.
+    Measured on the 'paper' scenario (exposure 1/60 s; truth A = 1.2, alpha = 110), 300 s,
+    four seeds: this fit gives A = 1.18-1.20, every 95 % interval covering the truth; both
+    unfiltered, A = 1.14-1.16 and no interval covers 1.2 (an hour: A = 1.153 [1.143, 1.164]);
+    both at 0.02, 40 s: A = 1.184 [1.179, 1.190], too narrow.
     ``exposure`` (s) is the camera's: the three-stage method then undoes the averaging of
     each frame over its exposure (estimation.three_stage).
     """
     if method not in METHODS:
         raise RecordError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
-    window = _steady_window(record, source)
+    window = _valid_window(record, source)
+    dt = float(np.median(np.diff(window.time)))
+    _check_oscillation(window.time, window.stator_position, dt, source)
+    window = _stretch(window, *steady_periods(window.time, window.stator_position))
     time, stator, slider = window.time, window.stator_position, window.slider_position
-    dt = float(np.median(np.diff(time)))
     frequency = _check_oscillation(time, stator, dt, source)
     options = {'epsilon': epsilon, 'exposure': exposure} if method == 'three-stage' else {}
     est, memory = estimation.relative_memory_test(time, stator, slider, method,
@@ -168,9 +251,10 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
         fitted = estimation.estimate_relative(time, stator, slider, method,
                                               **{**options, 'epsilon': fit_epsilon},
                                               fundamental=frequency)
-    fit = friction.fit_least_squares(fitted.velocity, fitted.acceleration, 'langevin')
-    comparison = tuple(friction.compare_laws(fitted.velocity, fitted.acceleration))
-    validation = friction.validate(fit.law, time, stator, slider, frequency)
+    comparison = tuple(friction.compare_laws(est.velocity, fitted.acceleration))
+    fit = next(law_fit for law_fit in comparison if law_fit.name == 'langevin')
+    validation = friction.validate(fit.law, time, stator, slider, frequency,
+                                   max_periods=VALIDATION_PERIODS)
     return AnalysisResult(
         source=source, method=method, epsilon=float(epsilon), exposure=float(exposure),
         fit_epsilon=float(fit_epsilon) if method == 'three-stage' else None, sample_period=dt,

@@ -67,12 +67,22 @@ def cmd_simulate(args):
 
 def cmd_analyze(args):
     """Analyse positions: derivatives, memory test, Langevin fit, validation."""
-    from microball_ros.analysis import analyze_record, load_positions, summary_lines
+    from microball_ros.analysis import (
+                                        analyze_record,
+                                        load_positions,
+                                        recorded_exposure,
+                                        summary_lines,
+    )
 
-    record = load_positions(args.input)
+    record = load_positions(args.input, **_frame_tracking(args), progress=_progress)
+    exposure = args.exposure
+    if exposure is None:
+        exposure = recorded_exposure(args.input)
+        if exposure is not None:
+            _progress(f'exposure {exposure:.6g} s, as recorded for the estimator')
     _progress(f'analysing {len(record.time)} samples from {args.input} ({args.method}) ...')
     result = analyze_record(record, method=args.method, epsilon=args.epsilon,
-                            fit_epsilon=args.fit_epsilon, exposure=args.exposure,
+                            fit_epsilon=args.fit_epsilon, exposure=exposure or 0.0,
                             source=args.input)
     for line in summary_lines(result):
         print(line)
@@ -104,6 +114,23 @@ def _roi(text):
 def _track_progress(done, total):
     of = f' of {total}' if total else ''
     print(f'tracked {done}{of} frames', file=sys.stderr, flush=True)
+
+
+def _frame_tracking_arguments(parser):
+    group = parser.add_argument_group(
+        'a bag with only camera frames', 'it is tracked first, with these values, else those '
+        'its recording kept (ROIs neither gives are detected in the first frames)')
+    group.add_argument('--slider-roi', type=_roi, metavar='X,Y,W,H',
+                       help='region of the slider mark over its whole travel, px')
+    group.add_argument('--stator-roi', type=_roi, metavar='X,Y,W,H',
+                       help='region of the stator mark over its whole travel, px')
+    group.add_argument('--meters-per-pixel', type=_positive_float, metavar='M',
+                       help='image scale along the bearing axis, m/px')
+
+
+def _frame_tracking(args):
+    return {'slider_roi': args.slider_roi, 'stator_roi': args.stator_roi,
+            'meters_per_pixel': args.meters_per_pixel}
 
 
 def cmd_track(args):
@@ -297,7 +324,8 @@ def cmd_reprocess(args):
     from microball_ros.reprocess import reprocess
 
     try:
-        counts = reprocess(args.bag, args.output, progress=_progress)
+        counts = reprocess(args.bag, args.output, progress=_progress,
+                           tracking=_frame_tracking(args))
     except NodeCrashed as error:
         print(f'microball reprocess: {error}', file=sys.stderr)
         return 1
@@ -388,11 +416,13 @@ def build_parser():
 
     again = commands.add_parser(
         'reprocess', help='replay a bag through fresh estimator and identifier nodes',
-        description="Replay the bag's /tracking/positions lock-step through fresh "
-                    'three_stage_estimator and friction_identifier processes and record '
+        description="Replay the bag's /tracking/positions (or, if it has only camera frames, "
+                    'its /camera/image_raw through a fresh camera_tracker) lock-step through '
+                    'fresh three_stage_estimator and friction_identifier processes and record '
                     'their outputs (byte for byte the recorded ones).')
     again.add_argument('bag', help='bag directory or .mcap file')
     again.add_argument('--output', required=True, help='bag directory to create')
+    _frame_tracking_arguments(again)
     again.set_defaults(func=cmd_reprocess)
 
     info = commands.add_parser('info', help='what a bag holds (like ros2 bag info)',
@@ -417,16 +447,18 @@ def build_parser():
                          help='amplitude-filter threshold, fraction of the largest FFT '
                               'component (default: 0.02)')
     analyze.add_argument('--fit-epsilon', type=_fraction, default=0.0,
-                         help='amplitude-filter threshold of the estimates the Langevin model '
-                              'is fitted to (three-stage only; default: 0, see README)')
-    analyze.add_argument('--exposure', type=float, default=0.0, metavar='S',
+                         help='amplitude-filter threshold of the accelerations the Langevin '
+                              'model is fitted to (three-stage only; default: 0, see README)')
+    analyze.add_argument('--exposure', type=_fraction, default=None, metavar='S',
                          help='camera exposure time, s: the three-stage method undoes the '
-                              'averaging of each frame over it (default: 0, instantaneous)')
+                              'averaging of each frame over it (default: what a bag recorded '
+                              'for its estimator, else 0, instantaneous)')
     analyze.add_argument('--method', default='three-stage',
                          choices=['three-stage', 'forward', 'lowpass-forward'],
                          help='derivative estimator (default: three-stage)')
     analyze.add_argument('--json', help='write the results as JSON to this file')
     analyze.add_argument('--report', help='write figures and estimates.csv into this folder')
+    _frame_tracking_arguments(analyze)
     analyze.set_defaults(func=cmd_analyze)
 
     track = commands.add_parser(

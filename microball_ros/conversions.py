@@ -100,21 +100,8 @@ def image_message(frame, stamp, frame_id='camera'):
     return msg
 
 
-_CHANNELS = {'mono8': 1, '8UC1': 1, 'bgr8': 3, 'rgb8': 3, 'bgra8': 4, 'rgba8': 4}
-
-
 def image_array(msg):
     """Return a sensor_msgs/Image as a grey H x W uint8 array (8-bit encodings only)."""
-    import cv2
+    from microball_ros.core.tracking import image_to_gray
 
-    channels = _CHANNELS.get(msg.encoding)
-    if channels is None:
-        raise ValueError(f'unsupported image encoding {msg.encoding!r} '
-                         f'(supported: {", ".join(_CHANNELS)})')
-    rows = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
-    pixels = rows[:, :msg.width * channels].reshape(msg.height, msg.width, channels)
-    if channels == 1:
-        return pixels[:, :, 0]
-    code = {'bgr8': cv2.COLOR_BGR2GRAY, 'rgb8': cv2.COLOR_RGB2GRAY,
-            'bgra8': cv2.COLOR_BGRA2GRAY, 'rgba8': cv2.COLOR_RGBA2GRAY}[msg.encoding]
-    return cv2.cvtColor(pixels, code)
+    return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data)

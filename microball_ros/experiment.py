@@ -44,7 +44,8 @@ def node_parameters(scenario_name, duration, speed, output=None):
     """Return node name -> parameter dict for an experiment on the named scenario.
 
     With ``output`` a recorder joins, recording every topic, and the bag's metadata keeps the
-    estimator's and identifier's parameters (for ``microball reprocess``).
+    tracker's, estimator's and identifier's parameters (for ``microball reprocess``, and to
+    track the frames of a bag cut down to them).
     """
     scenario = bench.get_scenario(scenario_name)
     rois = rig.suggested_rois(scenario)
@@ -66,7 +67,7 @@ def node_parameters(scenario_name, duration, speed, output=None):
     if output:
         kept = {f'microball.{name}': yaml.safe_dump(
             {k: v for k, v in parameters[name].items() if k != 'use_sim_time'})
-            for name in ('three_stage_estimator', 'friction_identifier')}
+            for name in ('camera_tracker', 'three_stage_estimator', 'friction_identifier')}
         parameters['recorder'] = {'output': output, 'custom_data': yaml.safe_dump(kept)}
     return parameters
 

@@ -84,11 +84,12 @@ class Player(Node):
                 executor.spin_once(timeout_sec=0.05)
 
     def play(self, executor, rate=1.0, start_offset=0.0, lockstep=False, progress=None,
-             paused=None, ack_timeout=30.0):
+             paused=None, ack_timeout=30.0, ready=None):
         """Publish every message once; return how many were published.
 
         ``executor`` is spun between messages so the process keeps serving its own nodes;
-        ``paused()`` (optional) holds playback while it returns True.
+        ``paused()`` (optional) holds playback while it returns True; ``ready()`` (optional)
+        is called before each message and returns when it may be published (it spins).
         """
         start = self.bag.start_ns + int(start_offset * 1e9)
         wall_start, bag_start = None, None
@@ -105,6 +106,8 @@ class Player(Node):
                     executor.spin_once(timeout_sec=min(0.05, max(0.0, due - time.monotonic())))
                     if paused and paused():
                         due += 0.05
+            if ready is not None:
+                ready()
             publisher = self.publishers_by_topic[message.topic]
             if self._clock is not None:
                 self._clock.publish(ClockMsg(clock=conversions.seconds_to_stamp(

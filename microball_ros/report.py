@@ -53,9 +53,10 @@ def figure_positions(result, path):
     t = window.time[shown]
     ax.plot(t, window.stator_position[shown] * 1e3, '.-', label='stator (measured)')
     ax.plot(t, window.slider_position[shown] * 1e3, '.-', label='slider (measured)')
-    # A slider moved by friction alone has no preferred rest point: align the means.
+    # A slider moved by friction alone has no preferred rest point: align the means (over the
+    # plotted stretch, which the validation simulated; the slider may drift over a long record).
     simulated = validation.simulated_slider_position
-    offset = np.nanmean(window.slider_position) - np.nanmean(simulated)
+    offset = np.nanmean(window.slider_position[shown]) - np.nanmean(simulated[shown])
     ax.plot(t, (simulated[shown] + offset) * 1e3, '--',
             label='slider (simulated with the fitted model, mean aligned)')
     ax.set_xlabel('time (s)')

@@ -6,6 +6,10 @@ parameters the run recorded (bag metadata, custom_data 'microball.<node>'), the 
 previous one), and an in-process recorder writes the replayed positions and the nodes' fresh
 /estimation/derivatives and /friction/model to the output bag. The nodes' outputs depend only
 on their ordered input, so the new messages equal the recorded ones byte for byte.
+
+A bag with only /camera/image_raw goes through a fresh camera_tracker first (parameters as in
+frames.tracker_parameters); each frame is published only after the tracker's position for the
+previous one was recorded, so no frame can be dropped however slow the tracker.
 """
 
 import tempfile
@@ -13,11 +17,11 @@ import time
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-import yaml
 
-from microball_ros.bags.reader import BagError, open_bag
+from microball_ros.bags.reader import IMAGES_TOPIC, BagError, open_bag, recorded_parameters
 from microball_ros.core.windowing import PositionWindower, Window, WindowSettings
 from microball_ros.experiment import NodeCrashed, _Processes
+from microball_ros.frames import TRACKER, tracked_frames, tracker_parameters
 from microball_ros.nodes.recorder import Recorder
 from microball_ros.nodes.three_stage_estimator import PARAMS as ESTIMATOR_PARAMS
 from microball_ros.player import Player, use_lockstep_profile
@@ -27,27 +31,12 @@ OUTPUTS = ('/estimation/derivatives', '/friction/model')
 REPROCESSED_NODES = ('three_stage_estimator', 'friction_identifier')
 
 
-def recorded_parameters(bag):
-    """Return node name -> parameters stored in the bag's metadata (empty if none)."""
-    parameters = {}
-    custom_data = (bag.metadata or {}).get('custom_data') or {}
-    for node in REPROCESSED_NODES:
-        text = custom_data.get(f'microball.{node}')
-        parameters[node] = yaml.safe_load(text) if text else {}
-    return parameters
+def expected_windows(samples, estimator_parameters):
+    """Return how many windows the estimator will publish for these positions.
 
-
-def expected_windows(bag, estimator_parameters):
-    """Return how many windows the estimator will publish for the bag's positions.
-
-    The bag's TrackedPositions go through the same core windower, with the same settings, as
-    in the estimator node.
+    ``samples`` are (stamp_ns, frame_index, stator, slider, valid) in publishing order; they
+    go through the same core windower, with the same settings, as in the estimator node.
     """
-    from microball_msgs.msg import TrackedPositions
-    from rclpy.serialization import deserialize_message
-
-    from microball_ros import conversions
-
     values = {name: p.default for name, p in ESTIMATOR_PARAMS.items()}
     values.update(estimator_parameters)
     windower = PositionWindower(WindowSettings(
@@ -55,59 +44,110 @@ def expected_windows(bag, estimator_parameters):
         min_amplitude=values['min_amplitude'],
         frequency_tolerance=values['frequency_tolerance']))
     count = 0
-    for message in bag.messages([POSITIONS]):
-        msg = deserialize_message(message.data, TrackedPositions)
-        events = windower.push(conversions.stamp_to_seconds(msg.header.stamp), msg.frame_index,
-                               msg.stator_position, msg.slider_position,
-                               msg.slider_valid and msg.stator_valid)
+    for stamp_ns, frame_index, stator, slider, valid in samples:
+        # The node's stamp_to_seconds(header.stamp), to the last bit.
+        stamp = stamp_ns // 1_000_000_000 + (stamp_ns % 1_000_000_000) * 1e-9
+        events = windower.push(stamp, frame_index, stator, slider, valid)
         count += sum(isinstance(e, Window) for e in events)
     return count
 
 
-def reprocess(bag_path, output, progress=print, timeout=600.0):
-    """Reprocess bag_path into the bag directory output; return per-topic counts."""
+def _recorded_samples(bag):
+    """Yield the bag's TrackedPositions as expected_windows samples."""
+    from microball_msgs.msg import TrackedPositions
+    from rclpy.serialization import deserialize_message
+
+    for message in bag.messages([POSITIONS]):
+        msg = deserialize_message(message.data, TrackedPositions)
+        yield (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec,
+               msg.frame_index, msg.stator_position, msg.slider_position,
+               msg.slider_valid and msg.stator_valid)
+
+
+def _tracked_samples(bag, tracker_parameters):
+    """Yield what a camera_tracker with these parameters will publish, as samples."""
+    for stamp_ns, index, stator, slider, _, _ in tracked_frames(bag, tracker_parameters):
+        yield stamp_ns, index, stator, slider, stator == stator and slider == slider
+
+
+def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
+    """Reprocess bag_path into the bag directory output; return per-topic counts.
+
+    ``tracking``: camera_tracker values given by the user (slider_roi, stator_roi,
+    meters_per_pixel; None entries are taken from the recording), for a bag with only frames.
+    ``timeout``: seconds any wait may go without progress before giving up.
+    """
     use_lockstep_profile()
     bag = open_bag(bag_path)
-    if POSITIONS not in bag.topics:
-        raise BagError(f'{bag_path}: no {POSITIONS} to reprocess (it has: '
-                       f'{", ".join(sorted(bag.topics))})')
-    parameters = recorded_parameters(bag)
-    windows = expected_windows(bag, parameters['three_stage_estimator'])
-    progress(f'{bag.topics[POSITIONS].count} positions -> {windows} windows expected')
+    parameters = {name: recorded_parameters(bag, name) for name in REPROCESSED_NODES}
+    if POSITIONS in bag.topics:
+        source, nodes, recorded = POSITIONS, REPROCESSED_NODES, [POSITIONS, *OUTPUTS]
+        samples = _recorded_samples(bag)
+    elif IMAGES_TOPIC in bag.topics:
+        source, nodes, recorded = IMAGES_TOPIC, (TRACKER, *REPROCESSED_NODES), [POSITIONS,
+                                                                               *OUTPUTS]
+        # The tracker listens only once the estimator and the recorder receive its positions.
+        parameters[TRACKER] = {**tracker_parameters(bag, **(tracking or {})),
+                               'wait_for_subscribers': 2}
+        values = parameters[TRACKER]
+        progress(f"{bag_path} has only camera frames: tracking them through camera_tracker "
+                 f"(slider ROI {values['slider_roi']}, stator ROI {values['stator_roi']}, "
+                 f"{values['meters_per_pixel']:.6g} m/px)")
+        samples = _tracked_samples(bag, parameters[TRACKER])
+    else:
+        raise BagError(f'{bag_path}: nothing to reprocess: no {POSITIONS} and no '
+                       f'{IMAGES_TOPIC} (it has: {", ".join(sorted(bag.topics))})')
+    windows = expected_windows(samples, parameters['three_stage_estimator'])
+    progress(f'{bag.topics[source].count} messages on {source} -> {windows} windows expected')
     context = rclpy.Context()
     rclpy.init(context=context)
     executor = SingleThreadedExecutor(context=context)
     log_dir = tempfile.mkdtemp(prefix='microball-reprocess-')
-    processes = _Processes({name: parameters[name] for name in REPROCESSED_NODES}, log_dir)
+    processes = _Processes({name: parameters[name] for name in nodes}, log_dir)
     recorder = Recorder(context=context, parameter_overrides=[
         rclpy.parameter.Parameter('output', value=output),
-        rclpy.parameter.Parameter('topics', value=[POSITIONS, *OUTPUTS])])
-    player = Player(bag, topics=[POSITIONS], context=context)
+        rclpy.parameter.Parameter('topics', value=recorded)])
+    player = Player(bag, topics=[source], context=context)
     for node in (recorder, player):
         executor.add_node(node)
-    deadline = time.monotonic() + timeout
 
-    def spin_until(condition, what):
+    def spin_until(condition, what, progress_of=lambda: None):
+        deadline, seen = time.monotonic() + timeout, progress_of()
         while not condition():
             executor.spin_once(timeout_sec=0.05)
             processes.check()
+            if progress_of() != seen:
+                deadline, seen = time.monotonic() + timeout, progress_of()
             if time.monotonic() > deadline:
                 raise NodeCrashed(f'timed out waiting for {what}; node logs in {log_dir}')
 
+    def positions_recorded():
+        return recorder.counts.get(POSITIONS, 0)
+
     try:
-        for name in REPROCESSED_NODES:
+        for name in nodes:
             processes.start(name)
-        positions = player.publishers_by_topic[POSITIONS]
-        spin_until(lambda: positions.get_subscription_count() >= 2,  # estimator + recorder
-                   'the estimator to subscribe')
-        spin_until(lambda: all(recorder.matched.get(t, 0) >= 1 for t in OUTPUTS),
+        published = player.publishers_by_topic[source]
+        subscribers = 1 if source == IMAGES_TOPIC else 2  # tracker; estimator + recorder
+        spin_until(lambda: published.get_subscription_count() >= subscribers,
+                   f'the {nodes[0]} to subscribe')
+        spin_until(lambda: all(recorder.matched.get(t, 0) >= 1 for t in recorded
+                               if t != source),
                    'the recorder to connect to the outputs')
-        player.play(executor, lockstep=True,
-                    progress=lambda n, t: progress(f'replayed {n} positions ({t:.1f} s)'))
+        ready = None
+        if source == IMAGES_TOPIC:
+            # Frame n + 1 only once the tracker's position for frame n is recorded.
+            def ready():
+                spin_until(lambda: positions_recorded() >= player.published,
+                           'the position of the last frame')
+        player.play(executor, lockstep=True, ready=ready,
+                    progress=lambda n, t: progress(f'replayed {n} messages ({t:.1f} s)'))
         replayed = player.published
         spin_until(lambda: all(recorder.counts.get(t, 0) >= windows for t in OUTPUTS)
-                   and recorder.counts.get(POSITIONS, 0) >= replayed,
-                   f'{windows} estimates and models')
+                   and positions_recorded() >= replayed,
+                   f'{windows} estimates and models',
+                   lambda: (*(recorder.counts.get(t, 0) for t in OUTPUTS),
+                            positions_recorded()))
     finally:
         processes.stop()
         executor.shutdown()

@@ -14,9 +14,11 @@ import rclpy
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message
 from ros_testing import Harness
+import yaml
 
 from microball_ros import conversions
 from microball_ros.bags.reader import open_bag, reindex
+from microball_ros.bags.writer import BagWriter
 from microball_ros.cli import main
 from microball_ros.experiment import run_experiment
 from microball_ros.nodes.common import DATA_QOS
@@ -124,12 +126,77 @@ def test_analyzing_the_bag_equals_analyzing_its_positions_as_csv(recorded_run, t
                                         'stator_position': record.stator_position,
                                         'slider_position': record.slider_position})
     results = []
-    for source in (bag_dir, str(csv_path)):
+    # The bag's analysis takes the exposure its estimator was given; the CSV's is told.
+    for source, options in ((bag_dir, []), (str(csv_path), ['--exposure', repr(1 / 60)])):
+        out = tmp_path / f'{len(results)}.json'
+        assert main(['analyze', source, '--json', str(out), *options]) == 0
+        results.append(json.loads(out.read_text()))
+    assert results[0]['exposure'] == pytest.approx(1 / 60)
+    for key in ('exposure', 'phase_difference', 'memoryless', 'model', 'validation'):
+        assert results[0][key] == results[1][key]
+
+
+def _frames_only(bag_dir, out, keep_parameters=True):
+    """Copy a bag's /camera/image_raw (and its recorded parameters) into a new bag."""
+    bag = open_bag(bag_dir)
+    topic = '/camera/image_raw'
+    with BagWriter(out) as cut:
+        if keep_parameters:
+            cut.custom_data.update(bag.metadata['custom_data'])
+        cut.add_topic(topic, bag.topics[topic].type, bag.topics[topic].qos_profiles_yaml)
+        for message in bag.messages([topic]):
+            cut.write(topic, message.data, message.log_time_ns, message.publish_time_ns)
+    return out
+
+
+def test_a_bag_of_frames_reprocesses_to_the_recorded_positions_and_outputs(recorded_run,
+                                                                            tmp_path):
+    bag_dir, _ = recorded_run
+    frames = _frames_only(bag_dir, str(tmp_path / 'frames'))
+    out = str(tmp_path / 'again')
+    result = subprocess.run([sys.executable, '-m', 'microball_ros.cli', 'reprocess', frames,
+                             '--output', out], capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert 'has only camera frames' in result.stderr
+    recorded, again = open_bag(bag_dir), open_bag(out)
+    # A fresh camera_tracker given the recorded frames and parameters publishes the recorded
+    # positions, and the estimator and identifier then their recorded outputs, to the byte.
+    for topic in ('/tracking/positions', '/estimation/derivatives', '/friction/model'):
+        old = [m.data for m in recorded.messages([topic])]
+        assert [m.data for m in again.messages([topic])] == old, topic
+        assert old
+
+
+def test_a_bag_of_frames_analyses_like_its_recorded_positions(recorded_run, tmp_path):
+    bag_dir, _ = recorded_run
+    frames = _frames_only(bag_dir, str(tmp_path / 'frames'))
+    results = []
+    for source in (bag_dir, frames):
         out = tmp_path / f'{len(results)}.json'
         assert main(['analyze', source, '--json', str(out)]) == 0
         results.append(json.loads(out.read_text()))
-    for key in ('phase_difference', 'memoryless', 'model', 'validation'):
-        assert results[0][key] == results[1][key]
+    for result in results:
+        result.pop('source')
+    assert results[0] == results[1]
+
+
+def test_a_bag_of_frames_without_parameters_needs_the_scale(recorded_run, tmp_path, capsys):
+    bag_dir, _ = recorded_run
+    frames = _frames_only(bag_dir, str(tmp_path / 'frames'), keep_parameters=False)
+    assert main(['analyze', frames]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and '--meters-per-pixel' in error[0]
+    # Given the scale, the ROIs are detected in the first frames.
+    scale = yaml.safe_load(open_bag(bag_dir).metadata['custom_data'][
+        'microball.camera_tracker'])['meters_per_pixel']
+    out = tmp_path / 'analysis.json'
+    assert main(['analyze', frames, '--meters-per-pixel', repr(scale), '--exposure',
+                 repr(1 / 60), '--json', str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result['memoryless'] is True
+    assert result['window']['samples_invalid'] == 0
+    low, high = result['model']['A_ci95']
+    assert low <= 1.2 <= high
 
 
 def test_killed_recorder_leaves_a_bag_that_reindex_repairs(tmp_path):

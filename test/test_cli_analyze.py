@@ -11,7 +11,10 @@ import sys
 import numpy as np
 import pytest
 
+from microball_ros import analysis
 from microball_ros.cli import main
+from microball_ros.core import friction
+from microball_ros.core.records import PositionRecord
 
 CONTRACT_KEYS = {'sample_period', 'fundamental_frequency', 'phase_difference',
                  'phase_uncertainty', 'memoryless', 'model', 'validation'}
@@ -94,6 +97,36 @@ def test_friction_with_memory_is_called_hysteretic(tmp_path_factory, scenario):
     _, result = _analysis(tmp_path_factory, scenario)
     assert result['memoryless'] is False
     assert math.pi - result['phase_difference'] > 0.2
+
+
+def _starting_rig(ramp_time=1.0, duration=20.0, frequency=2.95):
+    """Stator of a crank whose speed ramps up linearly for ramp_time, slider by the law."""
+    t = np.arange(0, duration, 1 / 30)
+    # Phase of a frequency ramping from 0 to f over ramp_time, then steady.
+    ramping = t < ramp_time
+    phase = 2 * np.pi * frequency * (t - ramp_time / 2)
+    phase[ramping] = 2 * np.pi * frequency * t[ramping] ** 2 / (2 * ramp_time)
+    stator = 1.2e-3 * np.sin(phase)
+    slider = friction.simulate_slider(friction.Langevin(1.2, 110.0), t, stator)
+    return PositionRecord(time=t, stator_position=stator, slider_position=slider)
+
+
+def test_the_servos_start_up_is_left_out_of_the_analysis():
+    record = _starting_rig()
+    start, stop = analysis.steady_periods(record.time, record.stator_position)
+    # Analysed from the first upward crossing once the crank turns steadily (ramp over at
+    # 1 s), to the last one.
+    assert 1.0 <= record.time[start] <= 1.0 + 1 / 2.95 + 1 / 30
+    assert record.time[stop - 1] >= 20.0 - 1 / 2.95 - 1 / 30
+    result = analysis.analyze_record(record)
+    assert result.window.time[0] == record.time[start]
+    assert result.fundamental_frequency == pytest.approx(2.95, rel=1e-5)
+    # Noise-free: the model is the truth (with the start-up in the FFT, A came out 1.56 on
+    # the sample bag's run).
+    assert result.fit.params['A'] == pytest.approx(1.2, rel=0.01)
+    assert result.fit.params['alpha'] == pytest.approx(110.0, rel=0.01)
+    steady = _starting_rig(ramp_time=0.0)
+    assert analysis.steady_periods(steady.time, steady.stator_position) == (0, len(steady.time))
 
 
 def test_forward_differences_show_the_papers_spurious_phase(paper, tmp_path):

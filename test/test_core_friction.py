@@ -373,6 +373,25 @@ def test_validation_reproduces_the_papers_simulated_amplitude_and_phase():
     assert result.simulated_slider_position.shape == t.shape
 
 
+def test_validation_of_the_first_periods_only_agrees_with_the_whole_record():
+    t = np.arange(0, 20, 1 / 30)
+    stator = X_STATOR * np.sin(W * t)
+    slider = simulate_slider(Langevin(A, ALPHA), t, stator, run_in=2 / FREQUENCY)
+    whole = validate(Langevin(A, ALPHA), t, stator, slider, FREQUENCY)
+    first = validate(Langevin(A, ALPHA), t, stator, slider, FREQUENCY, max_periods=10)
+    compared = t < 10 / FREQUENCY
+    assert np.all(np.isfinite(first.simulated_slider_position[compared]))
+    assert np.all(np.isnan(first.simulated_slider_position[~compared]))
+    # The steady response is the same over 10 periods as over 59.
+    assert first.slider_amplitude_simulated == pytest.approx(whole.slider_amplitude_simulated,
+                                                             rel=1e-4)
+    assert first.phase_simulated == pytest.approx(whole.phase_simulated, abs=1e-4)
+    assert first.slider_amplitude_measured == pytest.approx(first.slider_amplitude_simulated,
+                                                            rel=1e-3)
+    with pytest.raises(ValueError, match='max_periods'):
+        validate(Langevin(A, ALPHA), t, stator, slider, FREQUENCY, max_periods=0)
+
+
 def test_validation_skips_lost_samples_and_needs_a_run_in():
     t = np.arange(0, 10, 1 / 30)
     stator = X_STATOR * np.sin(W * t)

@@ -7,7 +7,8 @@ Bag.messages() yields the serialized messages in log-time order, checking chunk 
 reindex() is ``ros2 bag reindex`` plus recovery: it keeps every complete chunk of a truncated or
 damaged file, writes a complete copy and a fresh metadata.yaml, and keeps the original as
 ``<name>.mcap.truncated``. read_positions() turns /tracking/positions into a PositionRecord
-with rosbags (types from the bag's own schemas).
+and read_frames() /camera/image_raw into gray frames, with rosbags (types from the bag's own
+schemas); recorded_parameters() returns a node's parameters kept in the bag's metadata.
 """
 
 import heapq
@@ -33,9 +34,10 @@ import yaml
 from microball_ros.bags.schema import BagError, parse_qos_profiles, qos_profiles_yaml
 from microball_ros.bags.writer import ROS_DISTRO, McapFileWriter, bag_metadata, write_metadata_yaml
 from microball_ros.core.records import PositionRecord, check_time_base
+from microball_ros.core.tracking import image_to_gray
 
-__all__ = ['Bag', 'BagError', 'BagMessage', 'TopicInfo', 'open_bag', 'read_positions',
-           'reindex']
+__all__ = ['Bag', 'BagError', 'BagMessage', 'TopicInfo', 'open_bag', 'read_frames',
+           'read_positions', 'recorded_parameters', 'reindex']
 
 MAGIC = b'\x89MCAP0\r\n'
 METADATA_FILE = 'metadata.yaml'
@@ -733,6 +735,58 @@ POSITIONS_TOPIC = '/tracking/positions'
 POSITIONS_TYPE = 'microball_msgs/msg/TrackedPositions'
 
 
+IMAGES_TOPIC = '/camera/image_raw'
+IMAGE_TYPE = 'sensor_msgs/msg/Image'
+
+
+def recorded_parameters(bag, node):
+    """Return the parameters of ``node`` kept in the bag's metadata ({} if none).
+
+    ``microball experiment --output`` keeps them in metadata.yaml custom_data, under
+    'microball.<node>', as a YAML mapping (custom_data values are strings).
+    """
+    text = ((bag.metadata or {}).get('custom_data') or {}).get(f'microball.{node}')
+    if not text:
+        return {}
+    try:
+        parameters = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise BagError(f'{bag.path}: custom_data microball.{node} is not YAML '
+                       f'({_one_line(error)})') from None
+    if not isinstance(parameters, dict):
+        raise BagError(f'{bag.path}: custom_data microball.{node} is not a mapping')
+    return parameters
+
+
+def _check_topic(bag, topic, type_name):
+    if topic not in bag.topics:
+        raise BagError(f'{bag.path}: bag has no topic {topic}; it has: '
+                       f'{", ".join(sorted(bag.topics)) or "no topics"}')
+    recorded = bag.topics[topic].type
+    if recorded.replace('/msg/', '/') != type_name.replace('/msg/', '/'):
+        raise BagError(f'{bag.path}: topic {topic} has type {recorded}, not {type_name}')
+    if not bag.topics[topic].count:
+        raise BagError(f'{bag.path}: topic {topic} has no messages')
+
+
+def read_frames(bag, topic=IMAGES_TOPIC):
+    """Yield (header stamp in s, gray H x W uint8 frame) for each image of ``topic``.
+
+    ``bag`` is an open Bag. Frames come in log-time order, deserialized by rosbags; an
+    encoding that is not 8-bit, or a message rosbags cannot read, is a BagError.
+    """
+    _check_topic(bag, topic, IMAGE_TYPE)
+    try:
+        for image in _deserialized(bag, topic):
+            stamp = image.header.stamp.sec + image.header.stamp.nanosec * 1e-9
+            yield stamp, image_to_gray(image.encoding, image.height, image.width, image.step,
+                                       image.data)
+    except BagError:
+        raise
+    except Exception as error:  # noqa: B902 - rosbags' errors vary; report them in one line
+        raise BagError(f'{bag.path}: cannot read {topic}: {_one_line(error)}') from None
+
+
 def read_positions(path, topic=POSITIONS_TOPIC):
     """Read TrackedPositions from a bag into a PositionRecord (time = header.stamp, s).
 
@@ -742,13 +796,9 @@ def read_positions(path, topic=POSITIONS_TOPIC):
     chunk CRCs. Raise BagError if the topic is missing, and
     RecordError (also a ValueError) if the stamps are not uniformly increasing.
     """
-    bag = open_bag(path)
-    if topic not in bag.topics:
-        raise BagError(f'{path}: bag has no topic {topic}; it has: '
-                       f'{", ".join(sorted(bag.topics)) or "no topics"}')
-    type_name = bag.topics[topic].type
-    if type_name.replace('/msg/', '/') != POSITIONS_TYPE.replace('/msg/', '/'):
-        raise BagError(f'{path}: topic {topic} has type {type_name}, not {POSITIONS_TYPE}')
+    bag = path if isinstance(path, Bag) else open_bag(path)
+    path = bag.path
+    _check_topic(bag, topic, POSITIONS_TYPE)
     try:
         messages = list(_deserialized(bag, topic))
     except BagError:

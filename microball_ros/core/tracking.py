@@ -233,6 +233,31 @@ def _to_gray(frame):
     return frame
 
 
+# 8-bit sensor_msgs/Image encodings we track: encoding -> (channels, cv2 conversion to gray).
+IMAGE_ENCODINGS = {'mono8': (1, None), '8UC1': (1, None),
+                   'bgr8': (3, cv2.COLOR_BGR2GRAY), 'rgb8': (3, cv2.COLOR_RGB2GRAY),
+                   'bgra8': (4, cv2.COLOR_BGRA2GRAY), 'rgba8': (4, cv2.COLOR_RGBA2GRAY)}
+
+
+def image_to_gray(encoding, height, width, step, data):
+    """Return the pixels of a sensor_msgs/Image (its fields) as a gray H x W uint8 array.
+
+    Works on the fields of any Image object (rclpy's or rosbags'); ValueError (one line) for
+    an encoding that is not 8-bit or data shorter than height x step.
+    """
+    if encoding not in IMAGE_ENCODINGS:
+        raise ValueError(f'unsupported image encoding {encoding!r} '
+                         f'(supported: {", ".join(IMAGE_ENCODINGS)})')
+    channels, code = IMAGE_ENCODINGS[encoding]
+    buffer = np.frombuffer(data, dtype=np.uint8)
+    if step < width * channels or buffer.size < height * step:
+        raise ValueError(f'{encoding} image {width} x {height}, step {step}: '
+                         f'{buffer.size} bytes of data is too short')
+    rows = buffer[:height * step].reshape(height, step)
+    pixels = rows[:, :width * channels].reshape(height, width, channels)
+    return pixels[:, :, 0] if code is None else cv2.cvtColor(pixels, code)
+
+
 class FrameSource:
     """Frames from an array, a list of arrays, a video file or a folder of images.
 

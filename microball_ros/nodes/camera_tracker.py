@@ -37,6 +37,10 @@ PARAMS = {
     'video_speed': Param(1.0, 'video playback speed factor', 0.01, 1000.0, read_only=True),
     'publish_debug_image': Param(False, 'publish tracking/debug_image with the marks drawn'),
     'frame_id': Param('camera', 'frame_id for positions from video_path', read_only=True),
+    'wait_for_subscribers': Param(0, 'subscribe to the images only once tracking/positions has '
+                                     'this many matched subscribers (so none misses the first '
+                                     'positions); 0 subscribes at once', 0, 100,
+                                  read_only=True),
 }
 
 
@@ -82,8 +86,18 @@ class CameraTracker(Node):
         self._debug = self.create_publisher(Image, 'tracking/debug_image', 10)
         if values['video_path']:
             self._open_video(values)
+        elif values['wait_for_subscribers']:
+            self._waiting = self.create_timer(0.01, self._subscribe_when_matched)
         else:
-            self.create_subscription(Image, 'camera/image_raw', self._on_image, DATA_QOS)
+            self._subscribe()
+
+    def _subscribe(self):
+        self.create_subscription(Image, 'camera/image_raw', self._on_image, DATA_QOS)
+
+    def _subscribe_when_matched(self):
+        if self._publisher.get_subscription_count() >= self._values['wait_for_subscribers']:
+            self._waiting.cancel()
+            self._subscribe()
 
     @property
     def frames_tracked(self):
