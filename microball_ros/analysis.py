@@ -239,10 +239,12 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
         raise RecordError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
     window = _valid_window(record, source)
     dt = float(np.median(np.diff(window.time)))
-    _check_oscillation(window.time, window.stator_position, dt, source)
-    window = _stretch(window, *steady_periods(window.time, window.stator_position))
+    frequency = _check_oscillation(window.time, window.stator_position, dt, source)
+    start, stop = steady_periods(window.time, window.stator_position)
+    if (start, stop) != (0, len(window.time)):
+        window = _stretch(window, start, stop)
+        frequency = _check_oscillation(window.time, window.stator_position, dt, source)
     time, stator, slider = window.time, window.stator_position, window.slider_position
-    frequency = _check_oscillation(time, stator, dt, source)
     options = {'epsilon': epsilon, 'exposure': exposure} if method == 'three-stage' else {}
     est, memory = estimation.relative_memory_test(time, stator, slider, method,
                                                   frequency=frequency, **options)

@@ -354,6 +354,36 @@ def test_read_positions_from_bag_directory_and_single_file(recorded):
         np.testing.assert_array_equal(record.extra['stator_quality'], 0.25)
 
 
+@pytest.mark.parametrize('frame_ids', [['c'], ['camera_left_rectified'], ['camera', 'cam']])
+def test_read_positions_decodes_every_layout_like_rclpy(tmp_path, frame_ids):
+    # One frame_id (of any length: it moves the aligned fields) is decoded by numpy all at
+    # once; mixed lengths by rosbags message by message. Both must give what rclpy decodes.
+    sent = []
+    for i in range(90):
+        msg = _positions(i)
+        msg.header.frame_id = frame_ids[i % len(frame_ids)]
+        sent.append(msg)
+    directory = str(tmp_path / 'bag')
+    with BagWriter(directory) as bag:
+        bag.add_topic(POSITIONS, TYPES[POSITIONS], _qos())
+        for msg in sent:
+            t = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            bag.write(POSITIONS, serialize_message(msg), t, t)
+    decoded = [deserialize_message(m.data, TrackedPositions)
+               for m in open_bag(directory).messages([POSITIONS])]
+    record = read_positions(directory)
+    np.testing.assert_array_equal(record.time, [
+        (m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec) / 1e9 for m in decoded])
+    np.testing.assert_array_equal(record.stator_position, [
+        m.stator_position if m.stator_valid else np.nan for m in decoded])
+    np.testing.assert_array_equal(record.slider_position, [
+        m.slider_position if m.slider_valid else np.nan for m in decoded])
+    np.testing.assert_array_equal(record.extra['slider_quality'],
+                                  [m.slider_quality for m in decoded])
+    np.testing.assert_array_equal(record.extra['stator_quality'],
+                                  [m.stator_quality for m in decoded])
+
+
 def test_info_lines_read_like_ros2_bag_info(recorded):
     directory, _ = recorded
     lines = open_bag(directory).info_lines()

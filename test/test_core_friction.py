@@ -109,6 +109,22 @@ def test_langevin_slope_matches_a_numerical_derivative():
 # --- the laws ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize('law', [cls() for cls in STATIC_LAWS.values()], ids=list(STATIC_LAWS))
+def test_force_gradient_is_the_derivative_in_each_fitted_parameter(law):
+    # The fits use these as analytic Jacobians; check them against central differences,
+    # across and beyond the paper's velocities (|alpha v| up to 3.3 for the Langevin law).
+    v = np.linspace(-0.03, 0.03, 241)
+    gradient = law.force_gradient(v)
+    assert len(gradient) == len(law.fit_parameters)
+    for name, analytic in zip(law.fit_parameters, gradient, strict=True):
+        value = law.params[name]
+        h = 1e-6 * value
+        up = type(law)(**{**law.params, name: value + h}).force(v)
+        down = type(law)(**{**law.params, name: value - h}).force(v)
+        np.testing.assert_allclose(analytic, (up - down) / (2 * h), rtol=1e-6,
+                                   atol=1e-9 * np.abs(law.force(v)).max() / value)
+
+
+@pytest.mark.parametrize('law', [cls() for cls in STATIC_LAWS.values()], ids=list(STATIC_LAWS))
 def test_static_laws_share_the_interface_are_odd_and_oppose_sliding(law):
     v = np.linspace(-0.03, 0.03, 301)
     force = law.force(v)

@@ -11,6 +11,7 @@ and read_frames() /camera/image_raw into gray frames, with rosbags (types from t
 schemas); recorded_parameters() returns a node's parameters kept in the bag's metadata.
 """
 
+import contextlib
 import heapq
 import io
 import math
@@ -25,7 +26,7 @@ from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
-from mcap.stream_reader import breakup_chunk
+from mcap.stream_reader import get_chunk_data_stream
 import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -43,6 +44,7 @@ MAGIC = b'\x89MCAP0\r\n'
 METADATA_FILE = 'metadata.yaml'
 TRUNCATED_SUFFIX = '.truncated'
 _RECORD_HEAD = struct.Struct('<BQ')
+_MESSAGE_FIELDS = struct.Struct('<HIQQ')  # channel id, sequence, log time, publish time
 _KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
 _PARSERS = {Opcode.HEADER: Header.read, Opcode.SCHEMA: Schema.read,
             Opcode.CHANNEL: Channel.read, Opcode.CHUNK: Chunk.read, Opcode.METADATA: Metadata.read,
@@ -103,11 +105,38 @@ def _decode_record(opcode, body, offset):
 
 
 def _chunk_records(chunk, offset):
-    """Decompress a chunk and check its CRC; return its records or raise _Damage."""
+    """Decompress a chunk and check its CRC; return its records or raise _Damage.
+
+    Decompression and CRC are mcap's; the records are split here, each Message with one
+    struct call: mcap's field-by-field stream reads cost about 5 us per message, most of the
+    time it took to read an hour of positions (0.55 of 1.2 s). Schema and Channel records
+    (rare in chunks) are parsed by mcap.
+    """
     try:
-        return breakup_chunk(chunk, validate_crc=True)
-    except Exception as error:  # noqa: B902 - bad CRC, bad compression, bad inner records
+        stream, length = get_chunk_data_stream(chunk, validate_crc=True)
+        data = stream.read(length)
+    except Exception as error:  # noqa: B902 - bad CRC, bad compression
         raise _Damage(offset, f'corrupted chunk ({_one_line(error)})') from None
+    records = []
+    position, end = 0, len(data)
+    while position < end:
+        if end - position < _RECORD_HEAD.size:
+            raise _Damage(offset, 'corrupted chunk (a record cut short)')
+        opcode, length = _RECORD_HEAD.unpack_from(data, position)
+        body = position + _RECORD_HEAD.size
+        position = body + length
+        if position > end:
+            raise _Damage(offset, 'corrupted chunk (a record longer than the chunk)')
+        if opcode == Opcode.MESSAGE:
+            if length < _MESSAGE_FIELDS.size:
+                raise _Damage(offset, 'corrupted chunk (a message record too short)')
+            channel_id, sequence, log_time, publish_time = _MESSAGE_FIELDS.unpack_from(data, body)
+            records.append(Message(channel_id=channel_id, log_time=log_time,
+                                   data=data[body + _MESSAGE_FIELDS.size:position],
+                                   publish_time=publish_time, sequence=sequence))
+        elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+            records.append(_decode_record(opcode, data[body:position], offset))
+    return records
 
 
 class _Scan:
@@ -334,6 +363,21 @@ class _McapFile:
                                                   record))
                 yield heapq.heappop(heap)[3]
 
+    def iter_data(self, channel_ids):
+        """Yield the data of the given channels' messages in file order (bulk reads)."""
+        if self.chunk_indexes is None:
+            yield from (message.data for message in self.iter_messages(channel_ids))
+            return
+        chunks = sorted((c for c in self.chunk_indexes
+                         if not c.message_index_offsets
+                         or channel_ids & set(c.message_index_offsets)),
+                        key=lambda c: c.chunk_start_offset)
+        with open(self.path, 'rb') as handle:
+            for index in chunks:
+                for record in self._load_chunk(handle, index):
+                    if isinstance(record, Message) and record.channel_id in channel_ids:
+                        yield record.data
+
     def _load_chunk(self, handle, index):
         offset = index.chunk_start_offset
         handle.seek(offset)
@@ -345,6 +389,19 @@ class _McapFile:
             raise _Damage(offset, 'no chunk where the index says')
         chunk = _decode_record(opcode, data[_RECORD_HEAD.size:], offset)
         return _chunk_records(chunk, offset)
+
+
+@contextlib.contextmanager
+def _file_errors(mcap_file):
+    """Turn damage and I/O errors met while reading mcap_file into one-line BagErrors."""
+    try:
+        yield
+    except _Damage as damage:
+        raise BagError(f'{mcap_file.path}: corrupted at byte {damage.offset} '
+                       f'({damage.reason}); run `microball reindex '
+                       f'{os.path.dirname(mcap_file.path)}` to keep the intact chunks') from None
+    except OSError as error:
+        raise BagError(f'{mcap_file.path}: {_one_line(error)}') from None
 
 
 def _load_metadata_yaml(directory):
@@ -427,20 +484,27 @@ class Bag:
                 streams.append(self._file_messages(number, mcap_file, channel_ids))
         yield from heapq.merge(*streams, key=lambda m: m.log_time_ns)
 
+    def message_data(self, topic):
+        """Return the serialized messages of one topic as a list of bytes, in file order.
+
+        A bulk read for analysis (no log-time merge); the same checks as messages().
+        """
+        data = []
+        for mcap_file in self._files:
+            channel_ids = {cid for cid, channel in mcap_file.channels.items()
+                           if channel.topic == topic}
+            if channel_ids:
+                with _file_errors(mcap_file):
+                    data.extend(mcap_file.iter_data(channel_ids))
+        return data
+
     def _file_messages(self, number, mcap_file, channel_ids):
         names = {cid: (mcap_file.topic_of(cid), mcap_file.type_of(cid)) for cid in channel_ids}
-        try:
+        with _file_errors(mcap_file):
             for record in mcap_file.iter_messages(channel_ids):
                 topic, type_name = names[record.channel_id]
                 yield BagMessage(topic, type_name, record.data, record.log_time,
                                  record.publish_time)
-        except _Damage as damage:
-            raise BagError(f'{mcap_file.path}: corrupted at byte {damage.offset} '
-                           f'({damage.reason}); run `microball reindex '
-                           f'{os.path.dirname(mcap_file.path)}` to keep the intact chunks'
-                           ) from None
-        except OSError as error:
-            raise BagError(f'{mcap_file.path}: {_one_line(error)}') from None
 
     def definition(self, type_name):
         """Return the schema text (ros2msg) the bag stores for a message type."""
@@ -790,28 +854,36 @@ def read_frames(bag, topic=IMAGES_TOPIC):
 def read_positions(path, topic=POSITIONS_TOPIC):
     """Read TrackedPositions from a bag into a PositionRecord (time = header.stamp, s).
 
-    Positions whose ``*_valid`` flag is false become NaN; ``extra`` holds slider_quality and
-    stator_quality. Messages are deserialized by rosbags with the types of the bag's own
-    schemas (AnyReader's for a bag directory); the bytes come from Bag.messages(), which checks
-    chunk CRCs. Raise BagError if the topic is missing, and
-    RecordError (also a ValueError) if the stamps are not uniformly increasing.
+    ``path``: a bag directory, an .mcap file or an open Bag. Positions whose ``*_valid`` flag
+    is false become NaN; ``extra`` holds slider_quality and stator_quality. Messages are
+    deserialized by rosbags with the types of the bag's own schemas (AnyReader's for a bag
+    directory), or, when they all share one CDR layout (one frame_id), all at once by numpy
+    (_fixed_layout_positions: 0.25 s instead of 1.2 s for an hour; it must agree with rosbags
+    on the first, middle and last message).
+    The bytes come from Bag.message_data(), which checks chunk CRCs. Raise BagError if the
+    topic is missing, and RecordError (also a ValueError) if the stamps are not uniformly
+    increasing.
     """
     bag = path if isinstance(path, Bag) else open_bag(path)
     path = bag.path
     _check_topic(bag, topic, POSITIONS_TYPE)
+    data = bag.message_data(topic)
+    if not data:
+        raise BagError(f'{path}: topic {topic} has no messages')
+    type_name = bag.topics[topic].type
     try:
-        messages = list(_deserialized(bag, topic))
+        store = _typestore(bag, type_name)
+        columns = _fixed_layout_positions(data)
+        # Trust the fast decoding only where it agrees with rosbags: first, middle, last.
+        checked = sorted({0, len(data) // 2, len(data) - 1})
+        if columns is None or not all(_same_columns(_position_columns(
+                [store.deserialize_cdr(data[k], type_name)]), columns, k) for k in checked):
+            columns = _position_columns([store.deserialize_cdr(d, type_name) for d in data])
     except BagError:
         raise
     except Exception as error:  # noqa: B902 - rosbags' errors vary; report them in one line
         raise BagError(f'{path}: cannot deserialize {topic}: {_one_line(error)}') from None
-    if not messages:
-        raise BagError(f'{path}: topic {topic} has no messages')
-    stamps = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
-                       for m in messages], dtype=np.int64)
-    values = np.array([(m.stator_position if m.stator_valid else math.nan,
-                        m.slider_position if m.slider_valid else math.nan,
-                        m.slider_quality, m.stator_quality) for m in messages], dtype=float)
+    stamps, values = columns
     order = np.argsort(stamps, kind='stable')
     stamps, values = stamps[order], values[order]
     record = PositionRecord(time=stamps / 1e9, stator_position=values[:, 0],
@@ -820,6 +892,62 @@ def read_positions(path, topic=POSITIONS_TOPIC):
                                    'stator_quality': values[:, 3]})
     check_time_base(record.time, source=f'{path} {topic}')
     return record
+
+
+def _position_columns(messages):
+    """Return (stamps, ns; rows of stator, slider (NaN if invalid), slider, stator quality)."""
+    stamps = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+                       for m in messages], dtype=np.int64)
+    values = np.array([(m.stator_position if m.stator_valid else math.nan,
+                        m.slider_position if m.slider_valid else math.nan,
+                        m.slider_quality, m.stator_quality) for m in messages],
+                      dtype=float).reshape(-1, 4)
+    return stamps, values
+
+
+def _same_columns(a, b, row):
+    """Return True if row ``row`` of columns b equals columns a's only row, NaN for NaN."""
+    return (int(a[0][0]) == int(b[0][row])
+            and np.array_equal(a[1][0], b[1][row], equal_nan=True))
+
+
+_CDR_LITTLE_ENDIAN = b'\x00\x01'
+
+
+def _fixed_layout_positions(data):
+    """Decode TrackedPositions payloads all at once when they share one layout, else None.
+
+    CDR (little endian, after the 4-byte encapsulation header): stamp sec int32 and nanosec
+    uint32, frame_id (uint32 length L counting the NUL, then L bytes), then aligned to 8:
+    frame_index uint64, slider and stator position float64, slider and stator quality
+    float32, slider_valid and stator_valid bool. Equal payload lengths, encapsulation and L
+    make every field sit at the same offset in every message.
+    """
+    size = len(data[0])
+    if size < 16 or any(len(d) != size for d in data):
+        return None
+    joined = b''.join(data)
+    raw = np.frombuffer(joined, dtype=np.uint8).reshape(len(data), size)
+    text = int.from_bytes(data[0][12:16], 'little')
+    body = 8 * -(-(12 + text) // 8)  # frame_index offset, from the end of the encapsulation
+    if 4 + body + 34 > size:
+        return None
+    if not (np.all(raw[:, :2] == np.frombuffer(_CDR_LITTLE_ENDIAN, np.uint8))
+            and np.all(raw[:, 12:16].copy().view('<u4')[:, 0] == text)):
+        return None
+    layout = np.dtype({'names': ['sec', 'nanosec', 'slider', 'stator', 'slider_quality',
+                                 'stator_quality', 'slider_valid', 'stator_valid'],
+                       'formats': ['<i4', '<u4', '<f8', '<f8', '<f4', '<f4', 'u1', 'u1'],
+                       'offsets': [4, 8, 4 + body + 8, 4 + body + 16, 4 + body + 24,
+                                   4 + body + 28, 4 + body + 32, 4 + body + 33],
+                       'itemsize': size})
+    fields = np.frombuffer(joined, dtype=layout)
+    stamps = fields['sec'].astype(np.int64) * 1_000_000_000 + fields['nanosec']
+    values = np.column_stack([
+        np.where(fields['stator_valid'] != 0, fields['stator'], math.nan),
+        np.where(fields['slider_valid'] != 0, fields['slider'], math.nan),
+        fields['slider_quality'].astype(float), fields['stator_quality'].astype(float)])
+    return stamps, values
 
 
 def _typestore(bag, type_name):

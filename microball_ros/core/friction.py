@@ -45,10 +45,17 @@ _FRACTION_LEVELS = 8
 def _langevin_over_x(x):
     """Return (coth(x) - 1/x) / x for |x| < 1 by the continued fraction (floats or arrays)."""
     x2 = x * x
-    denominator = 2.0 * _FRACTION_LEVELS + 1.0
+    if isinstance(x2, float):
+        denominator = 2.0 * _FRACTION_LEVELS + 1.0
+        for level in range(_FRACTION_LEVELS - 1, 0, -1):
+            denominator = (2.0 * level + 1.0) + x2 / denominator
+        return 1.0 / denominator
+    # In place: the fit evaluates this on every sample many times.
+    denominator = np.full_like(x2, 2.0 * _FRACTION_LEVELS + 1.0)
     for level in range(_FRACTION_LEVELS - 1, 0, -1):
-        denominator = (2.0 * level + 1.0) + x2 / denominator
-    return 1.0 / denominator
+        np.divide(x2, denominator, out=denominator)
+        denominator += 2.0 * level + 1.0
+    return np.divide(1.0, denominator, out=denominator)
 
 
 def _inverse_sinh_squared(x):
@@ -68,11 +75,13 @@ def _unit_langevin(x):
         if abs(x) < _NEAR_ZERO:
             return x * _langevin_over_x(x)
         return 1.0 / math.tanh(x) - 1.0 / x
-    out = np.empty_like(x)
-    near = np.abs(x) < _NEAR_ZERO
-    out[near] = x[near] * _langevin_over_x(x[near])
-    far = x[~near]
-    out[~near] = 1.0 / np.tanh(far) - 1.0 / far
+    # The fraction everywhere (harmless far out), then the few far samples replaced: boolean
+    # masks cost four times the arithmetic on fit data.
+    out = x * _langevin_over_x(x)
+    far = np.flatnonzero(np.abs(x) >= _NEAR_ZERO)
+    if far.size:
+        x_far = x[far]
+        out[far] = 1.0 / np.tanh(x_far) - 1.0 / x_far
     return out
 
 
@@ -85,12 +94,12 @@ def _unit_langevin_slope(x):
             q = _langevin_over_x(x)
             return 1.0 - 2.0 * q - (x * q) ** 2
         return 1.0 / (x * x) - float(_inverse_sinh_squared(x))
-    out = np.empty_like(x)
-    near = np.abs(x) < _NEAR_ZERO
-    q = _langevin_over_x(x[near])
-    out[near] = 1.0 - 2.0 * q - (x[near] * q) ** 2
-    far = x[~near]
-    out[~near] = 1.0 / (far * far) - _inverse_sinh_squared(far)
+    q = _langevin_over_x(x)
+    out = 1.0 - 2.0 * q - (x * q) ** 2
+    far = np.flatnonzero(np.abs(x) >= _NEAR_ZERO)
+    if far.size:
+        x_far = x[far]
+        out[far] = 1.0 / (x_far * x_far) - _inverse_sinh_squared(x_far)
     return out
 
 
@@ -131,7 +140,8 @@ class StaticLaw:
     """Mix-in for memoryless laws: the state interface with no state, and ``acceleration``.
 
     A subclass is a frozen dataclass whose fields are its parameters and which defines ``name``,
-    ``fit_parameters`` (the fields ``fit_least_squares`` estimates, all positive) and ``force``.
+    ``fit_parameters`` (the fields ``fit_least_squares`` estimates, all positive), ``force``
+    and ``force_gradient`` (the analytic Jacobian the fit uses).
     """
 
     n_states: ClassVar[int] = 0
@@ -178,6 +188,11 @@ class Langevin(StaticLaw):
         """Return L(v_rel), m/s^2."""
         return langevin(v_rel, self.A, self.alpha)
 
+    def force_gradient(self, v_rel):
+        """Return (dL/dA, dL/dalpha), each an array over v_rel."""
+        x = self.alpha * np.asarray(v_rel, dtype=float)
+        return _unit_langevin(x), self.A * v_rel * _unit_langevin_slope(x)
+
 
 @dataclass(frozen=True)
 class Viscous(StaticLaw):
@@ -193,6 +208,10 @@ class Viscous(StaticLaw):
     def force(self, v_rel):
         """Return L(v_rel), m/s^2."""
         return self.c * _float_or_array(v_rel)
+
+    def force_gradient(self, v_rel):
+        """Return (dL/dc,), an array over v_rel."""
+        return (np.asarray(v_rel, dtype=float),)
 
 
 def _smooth_sign(v_rel, v_smooth):
@@ -223,6 +242,10 @@ class Coulomb(StaticLaw):
         """Return L(v_rel), m/s^2."""
         return self.Fc * _smooth_sign(v_rel, self.v_smooth)
 
+    def force_gradient(self, v_rel):
+        """Return (dL/dFc,), an array over v_rel."""
+        return (_smooth_sign(np.asarray(v_rel, dtype=float), self.v_smooth),)
+
 
 @dataclass(frozen=True)
 class CoulombViscous(StaticLaw):
@@ -241,6 +264,11 @@ class CoulombViscous(StaticLaw):
         """Return L(v_rel), m/s^2."""
         v = _float_or_array(v_rel)
         return self.Fc * _smooth_sign(v, self.v_smooth) + self.c * v
+
+    def force_gradient(self, v_rel):
+        """Return (dL/dFc, dL/dc), each an array over v_rel."""
+        v = np.asarray(v_rel, dtype=float)
+        return _smooth_sign(v, self.v_smooth), v
 
 
 @dataclass(frozen=True)
@@ -267,6 +295,14 @@ class Stribeck(StaticLaw):
         v = _float_or_array(v_rel)
         level = self.Fc + (self.Fs - self.Fc) * np.exp(-(v / self.vs) ** 2)
         return level * _smooth_sign(v, self.v_smooth) + self.c * v
+
+    def force_gradient(self, v_rel):
+        """Return (dL/dFc, dL/dFs, dL/dvs, dL/dc), each an array over v_rel."""
+        v = np.asarray(v_rel, dtype=float)
+        sign = _smooth_sign(v, self.v_smooth)
+        u = (v / self.vs) ** 2
+        bump = np.exp(-u) * sign
+        return sign - bump, bump, (self.Fs - self.Fc) * 2.0 / self.vs * u * bump, v
 
 
 STATIC_LAWS = MappingProxyType({law.name: law for law in
@@ -611,16 +647,19 @@ def _initial_guess(law_class, v, force, v_smooth):
     return [level, 1.5 * level, 0.3 * speed, slope]  # Stribeck: Fc, Fs, vs, c
 
 
-def _profile_bound(rss, theta_hat, index, direction, threshold, max_log_step):
+def _profile_bound(rss, theta_hat, index, direction, threshold, max_log_step, first_step=0.05):
     """Return the log-parameter where the profile RSS crosses threshold, or None if it does not.
 
     The profile fixes log-parameter ``index`` and minimises the RSS over the others (warm
     started from the previous profile point); the search walks away from the optimum in
-    doubling steps up to max_log_step, then refines the crossing by brentq. Profile values are
+    doubling steps from first_step up to max_log_step, then refines the crossing by brentq.
+    A first step just beyond the Wald interval brackets the crossing at once for a
+    well-determined parameter, and brentq then needs few evaluations. Profile values are
     memoised: an inner minimisation depends slightly on its starting point, and brentq must see
     the same signs at the bracket ends as the search did.
     """
     free = np.arange(len(theta_hat)) != index
+    free_columns = np.flatnonzero(free)
     start = theta_hat[free].copy()
     # The optimum itself is known: never re-minimise there from a far-away warm start.
     memo = {theta_hat[index]: rss(theta_hat) - threshold}
@@ -633,13 +672,17 @@ def _profile_bound(rss, theta_hat, index, direction, threshold, max_log_step):
                 def reduced(phi):
                     theta[free] = phi
                     return rss.residuals(theta)
-                solution = optimize.least_squares(reduced, start)
+
+                def reduced_jacobian(phi):
+                    theta[free] = phi
+                    return rss.jacobian(theta, free_columns)
+                solution = optimize.least_squares(reduced, start, jac=reduced_jacobian)
                 start[:] = solution.x
                 theta[free] = solution.x
             memo[log_value] = rss(theta) - threshold
         return memo[log_value]
 
-    inner, step = theta_hat[index], 0.05
+    inner, step = theta_hat[index], first_step
     while step < max_log_step:
         outer = theta_hat[index] + direction * step
         if excess(outer) > 0:
@@ -661,6 +704,19 @@ class _LogResiduals:
 
     def residuals(self, theta):
         return self.law(theta).acceleration(self.v) - self.a
+
+    def jacobian(self, theta, columns=None):
+        """Return d residuals / d theta (the acceleration is -L, and dp/dtheta = p).
+
+        Only the given columns (all by default), in Fortran order: what LAPACK's SVD in
+        least_squares wants, without copies.
+        """
+        gradient = self.law(theta).force_gradient(self.v)
+        columns = range(len(theta)) if columns is None else columns
+        out = np.empty((len(self.v), len(columns)), order='F')
+        for j, column in enumerate(columns):
+            np.multiply(gradient[column], -math.exp(theta[column]), out=out[:, j])
+        return out
 
     def __call__(self, theta):
         """Return the residual sum of squares."""
@@ -705,7 +761,8 @@ def fit_least_squares(v, a, law='langevin', *, v_smooth=DEFAULT_V_SMOOTH):
     fixed = {'v_smooth': v_smooth} if 'v_smooth' in {f.name for f in fields(law_class)} else {}
     rss = _LogResiduals(law_class, v, a, fixed)
     theta0 = np.log(_initial_guess(law_class, v, -a, v_smooth))
-    solution = optimize.least_squares(rss.residuals, theta0, method='lm', xtol=1e-12,
+    solution = optimize.least_squares(rss.residuals, theta0, jac=rss.jacobian, method='lm',
+                                      xtol=1e-12,
                                       ftol=1e-12)
     theta = solution.x
     values = np.exp(theta)
@@ -724,9 +781,12 @@ def fit_least_squares(v, a, law='langevin', *, v_smooth=DEFAULT_V_SMOOTH):
 
     threshold = rss_min * (1.0 + stats.f.ppf(0.95, 1, n - k) / (n - k))
     ci95 = {}
+    wald = math.sqrt(stats.f.ppf(0.95, 1, n - k)) * np.sqrt(np.diag(log_covariance))
     for index, name in enumerate(names):
-        low = _profile_bound(rss, theta, index, -1, threshold, _PROFILE_LIMIT)
-        high = _profile_bound(rss, theta, index, +1, threshold, _PROFILE_LIMIT)
+        first_step = float(np.clip(1.5 * wald[index], 1e-3, 0.05)) if math.isfinite(
+            wald[index]) else 0.05
+        low = _profile_bound(rss, theta, index, -1, threshold, _PROFILE_LIMIT, first_step)
+        high = _profile_bound(rss, theta, index, +1, threshold, _PROFILE_LIMIT, first_step)
         ci95[name] = (0.0 if low is None else float(np.exp(low)),
                       math.inf if high is None else float(np.exp(high)))
 
