@@ -248,34 +248,38 @@ def cmd_record(args):
 
 
 def _pause_on_space():
-    """Return paused() toggled by the space bar when stdin is a terminal, else None."""
-    if not sys.stdin.isatty():
-        return None
+    """Return (paused, restore) for the space bar when stdin is a terminal, else (None, None).
+
+    paused() is toggled by each space typed; restore() puts the terminal back as it was (it is
+    switched to character mode while playing).
+    """
+    stdin = sys.stdin
+    if not stdin.isatty():
+        return None, None
     import termios
     import threading
     import tty
 
     state = {'paused': False}
-    fd = sys.stdin.fileno()
+    fd = stdin.fileno()
     saved = termios.tcgetattr(fd)
+    tty.setcbreak(fd)
 
     def read_keys():
-        tty.setcbreak(fd)
-        try:
-            while True:
-                key = sys.stdin.read(1)
-                if not key:
-                    return
-                if key == ' ':
-                    state['paused'] = not state['paused']
-                    _progress('paused (space resumes)' if state['paused'] else 'resumed')
-        finally:
-            termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+        while True:
+            try:
+                key = stdin.read(1)
+            except (OSError, ValueError):  # the terminal went away or was closed
+                return
+            if not key:
+                return
+            if key == ' ':
+                state['paused'] = not state['paused']
+                _progress('paused (space resumes)' if state['paused'] else 'resumed')
 
     threading.Thread(target=read_keys, daemon=True).start()
-    import atexit
-    atexit.register(termios.tcsetattr, fd, termios.TCSADRAIN, saved)
-    return lambda: state['paused']
+    return (lambda: state['paused'],
+            lambda: termios.tcsetattr(fd, termios.TCSADRAIN, saved))
 
 
 def cmd_play(args):
@@ -291,12 +295,12 @@ def cmd_play(args):
         use_lockstep_profile()
     context = rclpy.Context()
     rclpy.init(context=context)
-    player = None
+    player = restore_terminal = None
     try:
         player = Player(bag, topics=args.topics, clock=args.clock, context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(player)
-        paused = _pause_on_space()
+        paused, restore_terminal = _pause_on_space()
         total = sum(bag.topics[t].count for t in player.publishers_by_topic)
         _progress(f'playing {total} messages of {args.bag} at {args.rate:g}x'
                   f'{" lock-step" if args.lockstep else ""}'
@@ -313,6 +317,8 @@ def cmd_play(args):
     except KeyboardInterrupt:
         print(f'stopped after {player.published if player else 0} messages')
     finally:
+        if restore_terminal is not None:
+            restore_terminal()
         if context.ok():
             rclpy.shutdown(context=context)
     return 0

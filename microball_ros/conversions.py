@@ -14,7 +14,11 @@ def stamp_to_seconds(stamp):
 
 def seconds_to_stamp(seconds):
     """Return float seconds (>= 0) as a builtin_interfaces/Time, rounded to the nanosecond."""
-    nanoseconds = int(round(seconds * 1e9))
+    return nanoseconds_to_stamp(int(round(seconds * 1e9)))
+
+
+def nanoseconds_to_stamp(nanoseconds):
+    """Return integer nanoseconds (>= 0) as a builtin_interfaces/Time, exactly."""
     return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
 
 

@@ -110,8 +110,8 @@ class Player(Node):
                 ready()
             publisher = self.publishers_by_topic[message.topic]
             if self._clock is not None:
-                self._clock.publish(ClockMsg(clock=conversions.seconds_to_stamp(
-                    message.log_time_ns * 1e-9)))
+                self._clock.publish(ClockMsg(clock=conversions.nanoseconds_to_stamp(
+                    message.log_time_ns)))
             publisher.publish(message.data)
             count += 1
             self.published += 1
