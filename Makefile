@@ -62,6 +62,7 @@ bench: setup
 	$(BIN)/python bench/bench_estimation.py
 	$(BIN)/python bench/bench_tracking.py
 	$(BIN)/python bench/bench_nodes.py
+	$(BIN)/python bench/bench_bags.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info

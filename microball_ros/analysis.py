@@ -122,11 +122,11 @@ def load_positions(path, slider_roi=None, stator_roi=None, meters_per_pixel=None
     )
 
     bag = open_bag(path)
-    if POSITIONS_TOPIC in bag.topics or IMAGES_TOPIC not in bag.topics:
-        if POSITIONS_TOPIC not in bag.topics:
-            raise BagError(f'{path}: bag has neither {POSITIONS_TOPIC} nor {IMAGES_TOPIC}; it '
-                           f'has: {", ".join(sorted(bag.topics)) or "no topics"}')
+    if POSITIONS_TOPIC in bag.topics:
         return read_positions(bag)
+    if IMAGES_TOPIC not in bag.topics:
+        raise BagError(f'{path}: bag has neither {POSITIONS_TOPIC} nor {IMAGES_TOPIC}; it '
+                       f'has: {", ".join(sorted(bag.topics)) or "no topics"}')
     from microball_ros.frames import track_bag, tracker_parameters
 
     parameters = tracker_parameters(bag, slider_roi, stator_roi, meters_per_pixel)

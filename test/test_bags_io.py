@@ -624,6 +624,15 @@ def test_missing_topic_in_read_positions(tmp_path):
     before = _snapshot(directory)
     message = _one_line_bag_error(lambda: read_positions(directory))
     assert message == f'{directory}: bag has no topic /tracking/positions; it has: {MODELS}'
+    # Neither positions nor frames: analyze and reprocess say so in one line, exit 2.
+    for command in (['analyze', directory], ['reprocess', directory, '--output',
+                                             str(tmp_path / 'out')]):
+        result = subprocess.run([sys.executable, '-m', 'microball_ros.cli', *command],
+                                capture_output=True, text=True, timeout=120)
+        assert result.returncode == 2, result.stderr
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and '/camera/image_raw' in lines[0], result.stderr
+    assert not os.path.exists(tmp_path / 'out')
     assert _snapshot(directory) == before
 
 
