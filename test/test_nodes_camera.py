@@ -99,3 +99,29 @@ def test_bad_roi_parameter_is_refused_at_start(ros_context):
     with pytest.raises(ValueError, match='slider ROI'):
         CameraTracker(context=ros_context, parameter_overrides=[
             Parameter('slider_roi', value=[1, 2, 3])])
+
+
+def test_tracker_listens_to_images_only_once_its_positions_have_subscribers(ros_context):
+    parameters, _ = _tracker_parameters(bench.get_scenario('paper'))
+    tracker = CameraTracker(context=ros_context, parameter_overrides=parameters + [
+        Parameter('wait_for_subscribers', value=1)])
+    harness = Harness(ros_context, tracker)
+    try:
+        images = harness.probe.create_publisher(Image, 'camera/image_raw', DATA_QOS)
+
+        def listening():
+            return any(s.topic_name == '/camera/image_raw' for s in tracker.subscriptions)
+        for _ in range(20):  # its timer checks every 10 ms; nobody takes its positions yet
+            harness.executor.spin_once(timeout_sec=0.05)
+        assert not listening()
+        positions = []
+        harness.probe.create_subscription(TrackedPositions, 'tracking/positions',
+                                          positions.append, DATA_QOS)
+        harness.spin_until(listening, message='the tracker to subscribe to images')
+        harness.wait_for_subscribers(images)
+        frame = np.zeros((480, 720), dtype=np.uint8)
+        images.publish(conversions.image_message(frame, 1.0))
+        harness.spin_until(lambda: len(positions) == 1, message='the first position')
+        assert positions[0].header.stamp.sec == 1
+    finally:
+        harness.close()
