@@ -187,3 +187,42 @@ def test_play_warns_about_the_unknown_type_and_plays_the_rest(bag_with_an_unknow
     assert 'skipping /lab/thing' in result.stderr
     assert 'lab_only_msgs/msg/Thing' in result.stderr
     assert f'played {COUNT} messages' in result.stdout
+
+
+SUBSCRIBER = """
+import rclpy
+from microball_msgs.msg import TrackedPositions
+from microball_ros.nodes.common import DATA_QOS
+rclpy.init()
+node = rclpy.create_node('stalled_subscriber')
+subscription = node.create_subscription(TrackedPositions, '/tracking/positions',
+                                        lambda msg: None, DATA_QOS)
+while subscription.get_publisher_count() < 1:
+    rclpy.spin_once(node, timeout_sec=0.05)
+print('matched', flush=True)
+rclpy.spin(node)
+"""
+
+
+def test_lockstep_waits_for_a_subscriber_that_stopped(ros_context, bag_with_an_unknown_type):
+    # A subscriber process that stops acknowledging (SIGSTOP) holds lock-step replay at the
+    # first message: no message is published that it has not taken. Without lock-step the
+    # player runs on.
+    player = Player(open_bag(bag_with_an_unknown_type), topics=[POSITIONS],
+                    context=ros_context)
+    harness = Harness(ros_context, player)
+    subscriber = subprocess.Popen([sys.executable, '-c', SUBSCRIBER], stdout=subprocess.PIPE,
+                                  text=True)
+    try:
+        player.wait_for_subscribers(harness.executor, [POSITIONS])
+        assert subscriber.stdout.readline().strip() == 'matched'
+        subscriber.send_signal(signal.SIGSTOP)
+        with pytest.raises(TimeoutError, match='did not acknowledge'):
+            player.play(harness.executor, lockstep=True, ack_timeout=3.0)
+        assert player.published == 1
+        assert player.play(harness.executor, rate=1000.0) == COUNT
+    finally:
+        subscriber.send_signal(signal.SIGCONT)
+        subscriber.kill()
+        subscriber.wait(timeout=30)
+        harness.close()

@@ -12,8 +12,8 @@ Lost messages are counted from the middleware's message-lost events.
 
 import importlib
 import struct
+import time
 
-from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
@@ -106,7 +106,6 @@ class Recorder(Node):
         self._closed = None
         self.lost = {}
         self.matched = {}
-        self._receive_clock = Clock(clock_type=ClockType.SYSTEM_TIME)
         self.create_timer(values['discovery_period'], self._discover)
         self.create_timer(values['flush_period'], self._writer.flush)
         self._discover()
@@ -139,7 +138,7 @@ class Recorder(Node):
         self.lost[topic] = 0
 
         def record(data, topic=topic, stamp=stamp):
-            received = self._receive_clock.now().nanoseconds
+            received = time.time_ns()  # system time, as rosbag2 stamps receipt
             self._writer.write(topic, data, received, stamp(data) if stamp else received)
 
         def on_message(data, topic=topic, record=record):
