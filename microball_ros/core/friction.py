@@ -190,8 +190,9 @@ class Langevin(StaticLaw):
 
     def force_gradient(self, v_rel):
         """Return (dL/dA, dL/dalpha), each an array over v_rel."""
-        x = self.alpha * np.asarray(v_rel, dtype=float)
-        return _unit_langevin(x), self.A * v_rel * _unit_langevin_slope(x)
+        v = np.asarray(v_rel, dtype=float)
+        x = self.alpha * v
+        return _unit_langevin(x), self.A * v * _unit_langevin_slope(x)
 
 
 @dataclass(frozen=True)
@@ -762,8 +763,7 @@ def fit_least_squares(v, a, law='langevin', *, v_smooth=DEFAULT_V_SMOOTH):
     rss = _LogResiduals(law_class, v, a, fixed)
     theta0 = np.log(_initial_guess(law_class, v, -a, v_smooth))
     solution = optimize.least_squares(rss.residuals, theta0, jac=rss.jacobian, method='lm',
-                                      xtol=1e-12,
-                                      ftol=1e-12)
+                                      xtol=1e-12, ftol=1e-12)
     theta = solution.x
     values = np.exp(theta)
     rss_min = rss(theta)
@@ -779,9 +779,10 @@ def fit_least_squares(v, a, law='langevin', *, v_smooth=DEFAULT_V_SMOOTH):
         sd = np.sqrt(np.diag(covariance))
         correlation = covariance / np.outer(sd, sd)
 
-    threshold = rss_min * (1.0 + stats.f.ppf(0.95, 1, n - k) / (n - k))
+    f95 = stats.f.ppf(0.95, 1, n - k)
+    threshold = rss_min * (1.0 + f95 / (n - k))
     ci95 = {}
-    wald = math.sqrt(stats.f.ppf(0.95, 1, n - k)) * np.sqrt(np.diag(log_covariance))
+    wald = math.sqrt(f95) * np.sqrt(np.diag(log_covariance))
     for index, name in enumerate(names):
         first_step = float(np.clip(1.5 * wald[index], 1e-3, 0.05)) if math.isfinite(
             wald[index]) else 0.05
