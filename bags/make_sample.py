@@ -10,8 +10,8 @@ Messages are copied byte for byte with their times and QoS, and the recorded nod
 
 import argparse
 
-from microball_ros.bags.reader import open_bag
-from microball_ros.bags.writer import BagWriter
+from microball_ros.io.bags.reader import open_bag
+from microball_ros.io.bags.writer import BagWriter
 
 FRAME_TOPICS = ('/camera/image_raw', '/tracking/debug_image')
 

@@ -57,11 +57,12 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from rclpy.signals import SignalHandlerOptions  # noqa: E402
 
-from microball_ros import analysis, conversions  # noqa: E402
-from microball_ros.bags.schema import message_definition, qos_profiles_yaml  # noqa: E402
-from microball_ros.bags.writer import BagWriter  # noqa: E402
+from microball_ros.app import analysis  # noqa: E402
 from microball_ros.core import bench, estimation, friction, rig  # noqa: E402
 from microball_ros.core.records import PositionRecord  # noqa: E402
+from microball_ros.io import conversions  # noqa: E402
+from microball_ros.io.bags.schema import message_definition, qos_profiles_yaml  # noqa: E402
+from microball_ros.io.bags.writer import BagWriter  # noqa: E402
 from microball_ros.nodes.common import DATA_QOS  # noqa: E402
 
 POSITIONS = '/tracking/positions'
@@ -194,7 +195,7 @@ def _publisher_child(env, topic, type_name, payloads, count, window, rate, recor
     """Publish count payloads: paced at ``rate`` /s, or at most ``window`` ahead of recorded."""
     _child_signals()
     os.environ.update(env)
-    from microball_ros.nodes.recorder import message_class
+    from microball_ros.io.conversions import message_class
 
     context = rclpy.Context()
     _init(context)
@@ -271,7 +272,7 @@ class _BareSink:
     """Reference for the recorder: a raw subscription that only counts (no bag)."""
 
     def __init__(self, context, topic, type_name):
-        from microball_ros.nodes.recorder import message_class
+        from microball_ros.io.conversions import message_class
 
         self.node = rclpy.create_node('bench_bags_bare', context=context)
         self._topic = topic
@@ -398,8 +399,8 @@ def _player_child(env, plays, commands, results):
     """Play each (mode, bag) of plays when told to; post ready and done messages."""
     _child_signals()
     os.environ.update(env)
-    from microball_ros.bags.reader import open_bag
-    from microball_ros.player import Player, use_lockstep_profile
+    from microball_ros.app.play import Player, use_lockstep_profile
+    from microball_ros.io.bags.reader import open_bag
 
     use_lockstep_profile()  # before rclpy.init, as microball play --lockstep does
     context = rclpy.Context()
@@ -425,7 +426,7 @@ def _player_child(env, plays, commands, results):
 
 
 def _profiled_player_child(run, workdir, plays, results):
-    from microball_ros.player import use_lockstep_profile
+    from microball_ros.app.play import use_lockstep_profile
 
     use_lockstep_profile()  # this process's subscriber answers heartbeats after 0.1 ms
     results.put(player_runs(run, workdir, plays))

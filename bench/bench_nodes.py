@@ -36,15 +36,15 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 import rclpy  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
-from microball_ros.core import bench, rig  # noqa: E402
-from microball_ros.experiment import (  # noqa: E402
+from microball_ros.app.experiment import (  # noqa: E402
     _READY,
     NODES,
     NodeCrashed,
+    NodeProcesses,
     _Monitor,
-    _Processes,
     node_parameters,
 )
+from microball_ros.core import bench, rig  # noqa: E402
 
 SCENARIO = 'paper'
 CLOCK_TICK = os.sysconf('SC_CLK_TCK')
@@ -125,7 +125,7 @@ def run_nodes(run_number, duration, speed, scenario_name=SCENARIO):
     monitor = _TimedMonitor(context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(monitor.node)
-    processes = _Processes(node_parameters(scenario_name, duration, speed), log_dir)
+    processes = NodeProcesses(node_parameters(scenario_name, duration, speed), log_dir)
     node = monitor.node
     pids = {}
     wall_limit = time.monotonic() + 30.0 + 3.0 * duration / speed

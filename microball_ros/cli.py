@@ -10,6 +10,7 @@ import json
 import os
 import sys
 
+from microball_ros.core.errors import InputError
 from microball_ros.core.records import RecordError
 
 EXIT_BAD_INPUT = 2
@@ -20,7 +21,7 @@ EXIT_INTERRUPTED = 130
 os.environ.setdefault('OPENCV_FFMPEG_LOGLEVEL', '-8')
 
 
-class CliError(Exception):
+class CliError(InputError):
     """Bad input detected by the CLI itself; the message is shown as one line."""
 
 
@@ -51,7 +52,7 @@ def _progress(message):
 def cmd_simulate(args):
     """Simulate the bench (no camera) and write its positions and ground truth to CSV."""
     from microball_ros.core import bench
-    from microball_ros.core.records import write_positions_csv
+    from microball_ros.io.positions_csv import write_positions_csv
 
     scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
                                                     if args.seed is not None else {}))
@@ -67,7 +68,7 @@ def cmd_simulate(args):
 
 def cmd_analyze(args):
     """Analyse positions: derivatives, memory test, Langevin fit, validation."""
-    from microball_ros.analysis import (
+    from microball_ros.app.analysis import (
                                         analyze_record,
                                         load_positions,
                                         recorded_exposure,
@@ -94,7 +95,7 @@ def cmd_analyze(args):
             handle.write('\n')
         print(f'wrote {args.json}')
     if args.report:
-        from microball_ros.report import write_report
+        from microball_ros.app.report import write_report
 
         _progress(f'drawing figures into {args.report} ...')
         for path in write_report(result, args.report):
@@ -135,8 +136,8 @@ def _frame_tracking(args):
 
 def cmd_track(args):
     """Track the slider and stator marks through a video and write the position CSV."""
-    from microball_ros.core.records import write_positions_csv
     from microball_ros.core.tracking import check_scale, track
+    from microball_ros.io.positions_csv import write_positions_csv
 
     check_scale(args.meters_per_pixel)
     if not os.path.exists(args.video):
@@ -181,8 +182,8 @@ class _Parser(argparse.ArgumentParser):
 
 def cmd_experiment(args):
     """Run the whole simulated rig, node by node over DDS, and print the identified model."""
+    from microball_ros.app.experiment import NodeCrashed, run_experiment, summary_lines
     from microball_ros.core import bench
-    from microball_ros.experiment import NodeCrashed, run_experiment, summary_lines
 
     if args.output and os.path.exists(args.output) and os.listdir(args.output):
         raise CliError(f'{args.output}: exists and is not empty; choose a new bag directory')
@@ -287,8 +288,8 @@ def cmd_play(args):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from microball_ros.bags.reader import open_bag
-    from microball_ros.player import Player, use_lockstep_profile
+    from microball_ros.app.play import Player, use_lockstep_profile
+    from microball_ros.io.bags.reader import open_bag
 
     bag = open_bag(args.bag)
     if args.lockstep:
@@ -326,8 +327,8 @@ def cmd_play(args):
 
 def cmd_reprocess(args):
     """Replay a bag's positions through fresh estimator and identifier nodes; record them."""
-    from microball_ros.experiment import NodeCrashed
-    from microball_ros.reprocess import reprocess
+    from microball_ros.app.experiment import NodeCrashed
+    from microball_ros.app.reprocess import reprocess
 
     try:
         counts = reprocess(args.bag, args.output, progress=_progress,
@@ -343,7 +344,7 @@ def cmd_reprocess(args):
 
 def cmd_info(args):
     """Print what a bag holds, like ros2 bag info."""
-    from microball_ros.bags.reader import open_bag
+    from microball_ros.io.bags.reader import open_bag
 
     for line in open_bag(args.bag).info_lines():
         print(line)
@@ -352,7 +353,7 @@ def cmd_info(args):
 
 def cmd_reindex(args):
     """Rebuild a bag's summary and metadata.yaml after its recorder died."""
-    from microball_ros.bags.reader import reindex
+    from microball_ros.io.bags.reader import reindex
 
     counts = reindex(args.bag)
     for topic in sorted(counts):

@@ -27,7 +27,7 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import Header
 import yaml
 
-from microball_ros.bags import (
+from microball_ros.io.bags import (
     BagError,
     BagWriter,
     message_definition,
@@ -36,7 +36,7 @@ from microball_ros.bags import (
     read_positions,
     reindex,
 )
-from microball_ros.bags.schema import msg_file, parse_qos_profiles, type_hash
+from microball_ros.io.bags.schema import msg_file, parse_qos_profiles, type_hash
 
 with warnings.catch_warnings():
     warnings.simplefilter('ignore', DeprecationWarning)  # the module warns on import
@@ -494,7 +494,7 @@ CHILD = textwrap.dedent("""
     import sys
     from microball_msgs.msg import TrackedPositions
     from rclpy.serialization import serialize_message
-    from microball_ros.bags import BagWriter
+    from microball_ros.io.bags import BagWriter
     bag = BagWriter(sys.argv[1])
     bag.add_topic('/tracking/positions', 'microball_msgs/msg/TrackedPositions')
     i = 0

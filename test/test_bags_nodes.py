@@ -16,14 +16,14 @@ from rclpy.serialization import deserialize_message
 from ros_testing import Harness
 import yaml
 
-from microball_ros import conversions
-from microball_ros.bags.reader import open_bag, reindex
-from microball_ros.bags.writer import BagWriter
+from microball_ros.app.experiment import run_experiment
+from microball_ros.app.play import Player
 from microball_ros.cli import main
-from microball_ros.experiment import run_experiment
+from microball_ros.io import conversions
+from microball_ros.io.bags.reader import open_bag, reindex
+from microball_ros.io.bags.writer import BagWriter
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.recorder import Recorder
-from microball_ros.player import Player
 
 
 def _positions(n):
@@ -117,8 +117,8 @@ def test_reprocessing_reproduces_the_recorded_outputs_byte_for_byte(recorded_run
 
 def test_analyzing_the_bag_equals_analyzing_its_positions_as_csv(recorded_run, tmp_path):
     bag_dir, _ = recorded_run
-    from microball_ros.bags.reader import read_positions
-    from microball_ros.core.records import write_positions_csv
+    from microball_ros.io.bags.reader import read_positions
+    from microball_ros.io.positions_csv import write_positions_csv
 
     record = read_positions(bag_dir)
     csv_path = tmp_path / 'positions.csv'

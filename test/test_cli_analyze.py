@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from microball_ros import analysis
+from microball_ros.app import analysis
 from microball_ros.cli import main
 from microball_ros.core import friction
 from microball_ros.core.records import PositionRecord

@@ -9,7 +9,7 @@ import pytest
 
 from microball_ros.cli import main
 from microball_ros.core import bench, camera, rig
-from microball_ros.core.records import read_positions_csv, write_positions_csv
+from microball_ros.io.positions_csv import read_positions_csv, write_positions_csv
 
 
 @pytest.fixture(scope='module')

@@ -15,7 +15,6 @@ from microball_ros.core.camera import (
     write_image_sequence,
     write_video,
 )
-from microball_ros.core.records import read_positions_csv, write_positions_csv
 from microball_ros.core.tracking import (
     FrameSource,
     Tracker,
@@ -27,6 +26,7 @@ from microball_ros.core.tracking import (
     symmetric_center,
     track,
 )
+from microball_ros.io.positions_csv import read_positions_csv, write_positions_csv
 
 CONFIG = CameraConfig()
 NOISIER = replace(CONFIG, electrons_per_dn=8.0, read_noise_dn=2.0)

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from microball_ros.experiment import run_experiment
+from microball_ros.app.experiment import run_experiment
 
 
 def _run(scenario, duration=20.0, speed=1.5):

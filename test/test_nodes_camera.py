@@ -9,8 +9,8 @@ from rclpy.parameter import Parameter
 from ros_testing import Harness
 from sensor_msgs.msg import Image
 
-from microball_ros import conversions
 from microball_ros.core import bench, rig
+from microball_ros.io import conversions
 from microball_ros.nodes.bench_simulator import BenchSimulator
 from microball_ros.nodes.camera_tracker import CameraTracker
 from microball_ros.nodes.common import DATA_QOS, LATCHED_QOS

@@ -8,8 +8,8 @@ import pytest
 from rclpy.parameter import Parameter
 from ros_testing import Harness
 
-from microball_ros import conversions
 from microball_ros.core import bench
+from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.friction_identifier import FrictionIdentifier
 from microball_ros.nodes.three_stage_estimator import ThreeStageEstimator

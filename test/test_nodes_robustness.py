@@ -9,8 +9,8 @@ from microball_msgs.msg import DerivativeEstimate, FrictionModel, TrackedPositio
 import pytest
 from ros_testing import Harness
 
-from microball_ros import conversions
 from microball_ros.core import bench
+from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.friction_identifier import FrictionIdentifier
 

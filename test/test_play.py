@@ -17,11 +17,12 @@ from rosbags.rosbag2 import Writer as RosbagsWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosgraph_msgs.msg import Clock
 
-from microball_ros import cli, conversions
-from microball_ros.bags.reader import open_bag
-from microball_ros.bags.schema import msg_file
+from microball_ros import cli
+from microball_ros.app.play import Player
+from microball_ros.io import conversions
+from microball_ros.io.bags.reader import open_bag
+from microball_ros.io.bags.schema import msg_file
 from microball_ros.nodes.common import DATA_QOS
-from microball_ros.player import Player
 
 POSITIONS = '/tracking/positions'
 POSITIONS_TYPE = 'microball_msgs/msg/TrackedPositions'

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from microball_ros.core.records import RecordError, read_positions_csv, write_positions_csv
+from microball_ros.core.records import RecordError
+from microball_ros.io.positions_csv import read_positions_csv, write_positions_csv
 
 
 def _write(tmp_path, text):

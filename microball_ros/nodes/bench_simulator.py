@@ -9,6 +9,7 @@ sensor_msgs/Image, or a real servo, replaces it without touching the other nodes
 """
 
 import math
+import sys
 
 from microball_msgs.msg import BenchState, ServoCommand
 from rclpy.clock import Clock, ClockType
@@ -16,9 +17,9 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Image
 
-from microball_ros import conversions
 from microball_ros.core import bench
 from microball_ros.core.rig import RigStepper
+from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS, LATCHED_QOS, Param, declare_parameters, run
 
 PARAMS = {
@@ -137,4 +138,4 @@ def main(args=None):
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -9,6 +9,7 @@ start of the exposure); a lost mark is published as invalid (NaN), never invente
 """
 
 import math
+import sys
 
 import cv2
 from microball_msgs.msg import TrackedPositions
@@ -16,8 +17,9 @@ import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
-from microball_ros import conversions
+from microball_ros.core.errors import InputError
 from microball_ros.core.tracking import FrameSource, Tracker, check_roi, check_scale
+from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
 
 PARAMS = {
@@ -108,7 +110,7 @@ class CameraTracker(Node):
         self._video = FrameSource(values['video_path'])
         fps = values['video_fps'] or self._video.fps
         if not fps:
-            raise ValueError(f"{values['video_path']}: unknown frame rate; set video_fps")
+            raise InputError(f"{values['video_path']}: unknown frame rate; set video_fps")
         self._tracker = Tracker(self._rois, values['meters_per_pixel'], fps,
                                 values['video_exposure'] or None,
                                 frame_size=self._video.frame_size)
@@ -158,4 +160,4 @@ def main(args=None):
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

@@ -10,8 +10,11 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 import rclpy
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+from microball_ros.core.errors import InputError, MicroballError
 
 # Data path: reliable, and deep enough that nothing is dropped at 30 fps even if a subscriber
 # stalls for a minute (DESIGN.md section 4).
@@ -70,7 +73,7 @@ def declare_parameters(node, params, validate):
     values = {name: node.get_parameter(name).value for name in params}
     reason = validate(values)
     if reason:
-        raise ValueError(f'{node.get_name()}: bad parameters: {reason}')
+        raise InputError(f'{node.get_name()}: bad parameters: {reason}')
 
     def on_set(changes):
         proposed = {name: node.get_parameter(name).value for name in params}
@@ -83,7 +86,11 @@ def declare_parameters(node, params, validate):
 
 
 def run(node_class, args=None):
-    """Create node_class, spin it until Ctrl-C or shutdown, and exit cleanly."""
+    """Create node_class, spin it until Ctrl-C or shutdown; return the exit status.
+
+    0 after Ctrl-C or shutdown; 2 with one line on stderr for a bad parameter (one the node's
+    validation refuses, or one of the wrong type or out of its declared range).
+    """
     rclpy.init(args=args)
     node = None
     try:
@@ -91,7 +98,7 @@ def run(node_class, args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as error:
+    except (MicroballError, ParameterException) as error:
         print(f'{node_class.__name__}: error: {error}', file=sys.stderr)
         return 2
     finally:

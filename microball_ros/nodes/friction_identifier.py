@@ -6,13 +6,15 @@ it as in the paper's Fig. 9 by simulating the slider under the stator motion of 
 window.
 """
 
+import sys
+
 from microball_msgs.msg import DerivativeEstimate, FrictionModel
 import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Header
 
-from microball_ros import conversions
 from microball_ros.core import friction
+from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
 from microball_ros.nodes.worker import OrderedWorker
 
@@ -97,4 +99,4 @@ def main(args=None):
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

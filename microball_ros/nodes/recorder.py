@@ -10,8 +10,8 @@ The bag is flushed about once a second, so a killed recorder loses at most that 
 Lost messages are counted from the middleware's message-lost events.
 """
 
-import importlib
 import struct
+import sys
 import time
 
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -19,8 +19,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 import yaml
 
-from microball_ros.bags.schema import qos_profiles_yaml
-from microball_ros.bags.writer import BagWriter
+from microball_ros.io.bags.schema import qos_profiles_yaml
+from microball_ros.io.bags.writer import BagWriter
+from microball_ros.io.conversions import message_class
 from microball_ros.nodes.common import Param, declare_parameters, matching_qos, run
 
 IGNORED_TOPICS = ('/rosout', '/parameter_events')
@@ -55,15 +56,6 @@ def check_parameters(values):
 
 # Messages one callback takes beyond its own before it yields to the timers (flush, discovery).
 DRAIN_LIMIT = 1000
-
-
-def message_class(type_name):
-    """Import the Python class of 'pkg/msg/Type'; raise ValueError if it is not installed."""
-    package, _, name = type_name.partition('/msg/')
-    try:
-        return getattr(importlib.import_module(f'{package}.msg'), name)
-    except (ImportError, AttributeError):
-        raise ValueError(f'message type {type_name} is not installed') from None
 
 
 def header_stamp_reader(message_type):
@@ -186,4 +178,4 @@ def main(args=None):
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

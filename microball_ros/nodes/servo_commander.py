@@ -7,6 +7,8 @@ the motion to bench_simulator, which listens to the same topic; a serial driver 
 servo implements ServoDriver.apply and registers in DRIVERS, and the node does not change.
 """
 
+import sys
+
 from microball_msgs.msg import ServoCommand
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -150,4 +152,4 @@ def main(args=None):
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

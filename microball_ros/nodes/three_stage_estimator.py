@@ -6,13 +6,15 @@ acceleration by the chosen method (three-stage by default) and the memory test
 stretch around them is skipped with a logged reason.
 """
 
+import sys
+
 from microball_msgs.msg import DerivativeEstimate, TrackedPositions
 from rclpy.node import Node
 from std_msgs.msg import Header
 
-from microball_ros import conversions
 from microball_ros.core import estimation
 from microball_ros.core.windowing import PositionWindower, Skip, WindowSettings
+from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
 from microball_ros.nodes.worker import OrderedWorker
 
@@ -111,4 +113,4 @@ def main(args=None):
 
 
 if __name__ == '__main__':
-    main()
+    sys.exit(main())

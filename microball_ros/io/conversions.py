@@ -1,5 +1,6 @@
 """Messages <-> numpy: the only module that knows both microball_msgs and the core types."""
 
+import importlib
 import math
 
 from builtin_interfaces.msg import Time
@@ -109,3 +110,12 @@ def image_array(msg):
     from microball_ros.core.tracking import image_to_gray
 
     return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+
+
+def message_class(type_name):
+    """Import the Python class of 'pkg/msg/Type'; raise ValueError if it is not installed."""
+    package, _, name = type_name.partition('/msg/')
+    try:
+        return getattr(importlib.import_module(f'{package}.msg'), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f'message type {type_name} is not installed') from None

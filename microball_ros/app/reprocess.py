@@ -18,13 +18,13 @@ import time
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
-from microball_ros.bags.reader import IMAGES_TOPIC, BagError, open_bag, recorded_parameters
+from microball_ros.app.experiment import NodeCrashed, NodeProcesses
+from microball_ros.app.play import Player, use_lockstep_profile
 from microball_ros.core.windowing import PositionWindower, Window, WindowSettings
-from microball_ros.experiment import NodeCrashed, _Processes
-from microball_ros.frames import TRACKER, tracked_frames, tracker_parameters
+from microball_ros.io.bags.reader import IMAGES_TOPIC, BagError, open_bag, recorded_parameters
+from microball_ros.io.frames import TRACKER, tracked_frames, tracker_parameters
 from microball_ros.nodes.recorder import Recorder
 from microball_ros.nodes.three_stage_estimator import PARAMS as ESTIMATOR_PARAMS
-from microball_ros.player import Player, use_lockstep_profile
 
 POSITIONS = '/tracking/positions'
 OUTPUTS = ('/estimation/derivatives', '/friction/model')
@@ -103,7 +103,7 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
     rclpy.init(context=context)
     executor = SingleThreadedExecutor(context=context)
     log_dir = tempfile.mkdtemp(prefix='microball-reprocess-')
-    processes = _Processes({name: parameters[name] for name in nodes}, log_dir)
+    processes = NodeProcesses({name: parameters[name] for name in nodes}, log_dir)
     recorder = Recorder(context=context, parameter_overrides=[
         rclpy.parameter.Parameter('output', value=output),
         rclpy.parameter.Parameter('topics', value=recorded)])

@@ -12,9 +12,9 @@ import itertools
 
 import numpy as np
 
-from microball_ros.bags.reader import BagError, read_frames, recorded_parameters
 from microball_ros.core.records import PositionRecord, check_time_base
 from microball_ros.core.tracking import Tracker, check_roi, check_scale, detect_rois
+from microball_ros.io.bags.reader import BagError, read_frames, recorded_parameters
 
 TRACKER = 'camera_tracker'
 DETECTION_FRAMES = 60

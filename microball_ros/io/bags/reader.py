@@ -32,10 +32,15 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 import yaml
 
-from microball_ros.bags.schema import BagError, parse_qos_profiles, qos_profiles_yaml
-from microball_ros.bags.writer import ROS_DISTRO, McapFileWriter, bag_metadata, write_metadata_yaml
 from microball_ros.core.records import PositionRecord, check_time_base
 from microball_ros.core.tracking import image_to_gray
+from microball_ros.io.bags.schema import BagError, parse_qos_profiles, qos_profiles_yaml
+from microball_ros.io.bags.writer import (
+    ROS_DISTRO,
+    McapFileWriter,
+    bag_metadata,
+    write_metadata_yaml,
+)
 
 __all__ = ['Bag', 'BagError', 'BagMessage', 'TopicInfo', 'open_bag', 'read_frames',
            'read_positions', 'recorded_parameters', 'reindex']

@@ -12,7 +12,8 @@ import os
 import numpy as np
 
 from microball_ros.core import estimation, friction
-from microball_ros.core.records import PositionRecord, RecordError, read_positions_csv
+from microball_ros.core.records import PositionRecord, RecordError
+from microball_ros.io.positions_csv import read_positions_csv
 
 METHODS = ('three-stage', 'forward', 'lowpass-forward')
 MIN_PERIODS = 4
@@ -113,7 +114,7 @@ def load_positions(path, slider_roi=None, stator_roi=None, meters_per_pixel=None
     """
     if not _is_bag(path):
         return read_positions_csv(path)
-    from microball_ros.bags.reader import (
+    from microball_ros.io.bags.reader import (
                                            IMAGES_TOPIC,
                                            POSITIONS_TOPIC,
                                            BagError,
@@ -127,7 +128,7 @@ def load_positions(path, slider_roi=None, stator_roi=None, meters_per_pixel=None
     if IMAGES_TOPIC not in bag.topics:
         raise BagError(f'{path}: bag has neither {POSITIONS_TOPIC} nor {IMAGES_TOPIC}; it '
                        f'has: {", ".join(sorted(bag.topics)) or "no topics"}')
-    from microball_ros.frames import track_bag, tracker_parameters
+    from microball_ros.io.frames import track_bag, tracker_parameters
 
     parameters = tracker_parameters(bag, slider_roi, stator_roi, meters_per_pixel)
     if progress is not None:
@@ -142,7 +143,7 @@ def recorded_exposure(path):
     """Return the camera exposure (s) a bag's recording gave its estimator, or None."""
     if not _is_bag(path):
         return None
-    from microball_ros.bags.reader import open_bag, recorded_parameters
+    from microball_ros.io.bags.reader import open_bag, recorded_parameters
 
     exposure = recorded_parameters(open_bag(path), 'three_stage_estimator').get('exposure')
     return None if exposure is None else float(exposure)

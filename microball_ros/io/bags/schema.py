@@ -20,6 +20,8 @@ import sys
 
 import yaml
 
+from microball_ros.core.errors import BagError
+
 DELIMITER = '=' * 80 + '\n'
 
 PRIMITIVE_TYPES = frozenset((
@@ -33,10 +35,6 @@ _MAX_DEPTH = 50
 QOS_KEYS = ('history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan', 'liveliness',
             'liveliness_lease_duration', 'avoid_ros_namespace_conventions')
 _DURATION_KEYS = ('deadline', 'lifespan', 'liveliness_lease_duration')
-
-
-class BagError(ValueError):
-    """A bag (or a message type) that cannot be read or written; the message is one line."""
 
 
 def _split_type_name(type_name):

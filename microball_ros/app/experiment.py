@@ -81,7 +81,7 @@ _READY_RECORDING = {'camera/image_raw': 1, 'tracking/positions': 3,
                     'estimation/derivatives': 3, 'friction/model': 2, 'servo/command': 1}
 
 
-class _Processes:
+class NodeProcesses:
     """The node processes, their logs, and their orderly (or forced) end."""
 
     def __init__(self, parameters, log_dir):
@@ -222,7 +222,7 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
     monitor = _Monitor(context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(monitor.node)
-    processes = _Processes(parameters, log_dir)
+    processes = NodeProcesses(parameters, log_dir)
     node = monitor.node
     try:
         wall_limit = time.monotonic() + 60.0 + 4.0 * duration / speed

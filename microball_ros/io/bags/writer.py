@@ -20,7 +20,7 @@ from mcap.writer import CompressionType, Writer
 import yaml
 
 from microball_ros import __version__ as _package_version
-from microball_ros.bags.schema import (
+from microball_ros.io.bags.schema import (
     BagError,
     message_definition,
     normalize_type_name,
