@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 BUILD := build/msg_defs
 MSGS := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv)
 
-.PHONY: setup demo test lint bench clean check-tools
+.PHONY: setup demo test test-fast lint bench clean check-tools
 .DEFAULT_GOAL := demo
 
 setup: $(VENV)/.stamp-package
@@ -54,8 +54,15 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest
 
+# The fast tier: core numerics and io (CSV, bags, fingerprint), no DDS (about 30 s).
+FAST_TESTS := $(wildcard test/test_core_*.py test/test_io_*.py) test/test_records.py \
+	test/test_bags_io.py test/test_layers.py
+test-fast: setup
+	$(BIN)/python -m pytest -m 'not ros' $(FAST_TESTS)
+
 lint: setup
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 
 bench: setup
 	$(BIN)/pip install -q --disable-pip-version-check -r requirements-bench.txt

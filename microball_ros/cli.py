@@ -1,8 +1,8 @@
-"""The ``microball`` command line (contract: DESIGN.md section 5).
+"""The ``microball`` command line (contract: docs/design.md section 5).
 
-Every sub-command validates its input and fails with one line on stderr and a non-zero exit
-(2 for bad input, 130 for Ctrl-C), never a traceback. The work itself lives in the core and in
-the other modules; this file only parses arguments and prints.
+Every sub-command validates its input; a problem the user can fix (a MicroballError) is one
+line on stderr and exit status 2, Ctrl-C is 130, and anything else is a bug with its traceback
+and exit status 1. The work itself lives in app/ and below; this file parses and prints.
 """
 
 import argparse
@@ -10,8 +10,7 @@ import json
 import os
 import sys
 
-from microball_ros.core.errors import InputError
-from microball_ros.core.records import RecordError
+from microball_ros.core.errors import InputError, MicroballError
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERRUPTED = 130
@@ -503,16 +502,29 @@ def build_parser():
     return parser
 
 
+def _refuse(command, message):
+    """Print a user's error as one line on stderr and return the bad-input exit status."""
+    message = ' '.join(message.split()) or 'error'
+    print(f'microball {command}: error: {message}', file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
 def main(argv=None):
-    """Run the microball command line; return the exit status."""
+    """Run the microball command line; return the exit status.
+
+    A MicroballError (bad input, an unusable bag, a failed fit) or an OSError about a named file
+    is one line on stderr and exit status 2; anything else is a bug: its traceback, exit 1.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (CliError, RecordError, ValueError, OSError) as error:
-        message = ' '.join(str(error).split()) or type(error).__name__
-        print(f'microball {args.command}: error: {message}', file=sys.stderr)
-        return EXIT_BAD_INPUT
+    except MicroballError as error:
+        return _refuse(args.command, str(error))
+    except OSError as error:
+        if error.filename is None:  # not about a file the user named: a bug
+            raise
+        return _refuse(args.command, f'{error.filename}: {error.strerror or error}')
     except KeyboardInterrupt:
         print(f'microball {args.command}: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
