@@ -187,11 +187,9 @@ def cmd_experiment(args):
     if args.output and os.path.exists(args.output) and os.listdir(args.output):
         raise CliError(f'{args.output}: exists and is not empty; choose a new bag directory')
     bench.get_scenario(args.scenario)
-    _progress(f'experiment: scenario {args.scenario!r}, {args.duration:g} s simulated at '
-              f'{args.speed:g}x; starting the nodes ...')
     try:
         monitor = run_experiment(args.scenario, args.duration, args.speed, progress=_progress,
-                                 output=args.output)
+                                 output=args.output, domain_id=args.domain_id)
     except NodeCrashed as error:
         print(f'microball experiment: {error}', file=sys.stderr)
         return 1
@@ -394,6 +392,9 @@ def build_parser():
                             help='simulation speed factor; != 1 publishes /clock and the '
                                  'nodes use sim time (default: 1, real time)')
     experiment.add_argument('--output', help='bag directory to record every topic into')
+    experiment.add_argument('--domain-id', type=int, metavar='N',
+                            help='ROS domain to run in (default: a free one; one another '
+                                 'microball run holds is refused)')
     experiment.set_defaults(func=cmd_experiment)
 
     record = commands.add_parser(

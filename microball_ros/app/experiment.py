@@ -5,6 +5,10 @@ friction_identifier as separate processes (``python -m microball_ros.nodes.<name
 their topics from a monitor node in this process, shows progress, and stops them all at the
 end, on Ctrl-C, or when one of them dies (saying which and why). Children also get SIGTERM if
 this process is killed outright (Linux parent-death signal), so no node is left orphaned.
+
+Never mixed with another rig: the run claims a ROS domain of its own (app/isolation.py), and
+the monitor watches every topic of the run for a publisher it did not start or a sequence
+going backwards; either stops the run with an IsolationError (exit 2, one line).
 """
 
 import ctypes
@@ -22,6 +26,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 import yaml
 
+from microball_ros.app.isolation import ForeignPublisherCheck, IsolationError, claim_domain
 from microball_ros.core import bench, rig
 from microball_ros.nodes.common import DATA_QOS
 
@@ -84,9 +89,10 @@ _READY_RECORDING = {'camera/image_raw': 1, 'tracking/positions': 3,
 class NodeProcesses:
     """The node processes, their logs, and their orderly (or forced) end."""
 
-    def __init__(self, parameters, log_dir):
+    def __init__(self, parameters, log_dir, env=None):
         self.log_dir = log_dir
         self.parameters = parameters
+        self.env = env
         self.procs = {}
 
     def start(self, name):
@@ -98,7 +104,7 @@ class NodeProcesses:
                 '--params-file', params]
         log = open(os.path.join(self.log_dir, f'{name}.log'), 'w')
         self.procs[name] = (subprocess.Popen(args, stdout=log, stderr=subprocess.STDOUT,
-                                             stdin=subprocess.DEVNULL,
+                                             stdin=subprocess.DEVNULL, env=self.env,
                                              preexec_fn=_die_with_parent), log)
 
     def check(self):
@@ -129,8 +135,17 @@ class NodeProcesses:
             log.close()
 
 
+# Publishers this run starts on each topic; one more is another rig on the same domain.
+RUN_PUBLISHERS = {'/servo/command': 1, '/camera/image_raw': 1, '/bench/ground_truth': 1,
+                  '/tracking/positions': 1, '/estimation/derivatives': 1, '/friction/model': 1}
+
+
 class _Monitor:
-    """Counts what the nodes publish; holds the newest model and every window's verdict."""
+    """Counts what the nodes publish; holds the newest model and every window's verdict.
+
+    It also watches for another rig: ``foreign`` is fed every tracked frame's index and every
+    ground-truth stamp, and ``check_graph`` compares the publisher counts with the run's.
+    """
 
     def __init__(self, context):
         self.node = rclpy.create_node('microball_experiment_monitor', context=context)
@@ -139,6 +154,7 @@ class _Monitor:
         self.windows = []
         self.models = []
         self.last_change = time.monotonic()
+        self.foreign = ForeignPublisherCheck(RUN_PUBLISHERS)
         for message_type, topic, callback in (
                 (BenchState, 'bench/ground_truth', self._on_frame),
                 (TrackedPositions, 'tracking/positions', self._on_tracked),
@@ -151,11 +167,19 @@ class _Monitor:
 
     def _on_frame(self, msg):
         self.frames += 1
+        self.foreign.observe('/bench/ground_truth',
+                             msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
         self._touch()
 
     def _on_tracked(self, msg):
         self.tracked += 1
+        self.foreign.observe('/tracking/positions', msg.frame_index)
         self._touch()
+
+    def check_graph(self):
+        """Return a one-line problem if a topic has a publisher this run did not start."""
+        return self.foreign.check({topic: self.node.count_publishers(topic)
+                                   for topic in RUN_PUBLISHERS})
 
     def _on_window(self, msg):
         self.windows.append((msg.phase_difference, msg.phase_uncertainty, msg.memoryless))
@@ -204,34 +228,52 @@ def summary_lines(monitor, scenario_name):
 
 
 def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=3.0,
-                   output=None):
+                   output=None, domain_id=None):
     """Run the experiment; return the monitor (counts, windows, models) when it is done.
 
     Done means: the bench has published every frame of ``duration``, each was tracked, and
     nothing new has arrived for ``quiet_period`` wall seconds (the estimator and identifier
-    have drained their queues). Raises NodeCrashed if a node dies.
+    have drained their queues). The run claims ``domain_id`` or a free ROS domain and keeps
+    discovery on this machine unless ROS_AUTOMATIC_DISCOVERY_RANGE says otherwise. Raises
+    NodeCrashed if a node dies, IsolationError if the domain is taken or another rig's
+    messages show up.
     """
     scenario = bench.get_scenario(scenario_name)
     fps = rig.camera_for(scenario).fps
     expected_frames = math.floor(duration * fps + 1e-9)
     parameters = node_parameters(scenario_name, duration, speed, output)
     ready = _READY_RECORDING if output else _READY
+    claim = claim_domain(domain_id)
+    env = claim.environment()
+    progress(f'experiment: scenario {scenario_name!r}, {duration:g} s simulated at {speed:g}x '
+             f'in ROS domain {claim.domain_id} (held by this run, discovery '
+             f"{env['ROS_AUTOMATIC_DISCOVERY_RANGE'].lower()}); starting the nodes ...")
     log_dir = tempfile.mkdtemp(prefix='microball-experiment-')
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     context = rclpy.Context()
-    rclpy.init(context=context)
+    rclpy.init(context=context, domain_id=claim.domain_id)
     monitor = _Monitor(context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(monitor.node)
-    processes = NodeProcesses(parameters, log_dir)
+    processes = NodeProcesses(parameters, log_dir, env=env)
     node = monitor.node
     try:
         wall_limit = time.monotonic() + 60.0 + 4.0 * duration / speed
+        next_graph_check = 0.0
 
         def spin_until(condition, what):
+            nonlocal next_graph_check
             while not condition():
                 executor.spin_once(timeout_sec=0.1)
                 processes.check()
-                if time.monotonic() > wall_limit:
+                now = time.monotonic()
+                if now >= next_graph_check:
+                    monitor.check_graph()
+                    next_graph_check = now + 0.5
+                if monitor.foreign.problem:
+                    where = f'; the bag {output} may hold its messages' if output else ''
+                    raise IsolationError(f'{monitor.foreign.problem}{where}; run stopped')
+                if now > wall_limit:
                     raise NodeCrashed(f'timed out waiting for {what}; node logs in {log_dir}')
 
         # Downstream first; the bench starts once every subscription is in place, and holds
@@ -262,3 +304,4 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
         monitor.node.destroy_node()
         if context.ok():
             rclpy.shutdown(context=context)
+        claim.release()
