@@ -1,37 +1,22 @@
 """Test-session set-up: an exclusive ROS_DOMAIN_ID and localhost-only discovery.
 
-Every pytest session locks a free domain ID on this machine (a lock file per ID, held for the
-whole session), so two test runs, even of different checkouts, never see each other's nodes.
-Child processes inherit the environment.
+Every pytest session claims a free domain ID on this machine (app/isolation.py: a lock file per
+ID, held for the whole session, shared with `microball experiment`), so two test runs, even of
+different checkouts, never see each other's nodes. Child processes inherit the environment.
 """
 
-import fcntl
 import os
-import tempfile
 
 import pytest
 
-_DOMAIN_IDS = range(1, 101)
-
-
-def _lock_free_domain_id():
-    for domain_id in _DOMAIN_IDS:
-        path = os.path.join(tempfile.gettempdir(), f'microball-ros-domain-{domain_id}.lock')
-        handle = open(path, 'w')
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            handle.close()
-            continue
-        return domain_id, handle
-    raise RuntimeError('no free ROS_DOMAIN_ID in 1..100 for this test session')
+from microball_ros.app.isolation import claim_domain
 
 
 def pytest_configure(config):
     """Claim a domain ID before any test (or rclpy) runs."""
-    domain_id, handle = _lock_free_domain_id()
-    config._microball_domain_lock = handle
-    os.environ['ROS_DOMAIN_ID'] = str(domain_id)
+    claim = claim_domain()
+    config._microball_domain = claim
+    os.environ['ROS_DOMAIN_ID'] = str(claim.domain_id)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 
@@ -44,9 +29,9 @@ def pytest_report_header(config):
 
 def pytest_unconfigure(config):
     """Release the domain ID."""
-    handle = getattr(config, '_microball_domain_lock', None)
-    if handle is not None:
-        handle.close()
+    claim = getattr(config, '_microball_domain', None)
+    if claim is not None:
+        claim.release()
 
 
 @pytest.fixture
