@@ -19,6 +19,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from microball_ros.core import friction
+from microball_ros.core.errors import InputError
 
 
 def crank_slider_position(theta, r, rod):
@@ -88,17 +89,17 @@ class Scenario:
         for name in ('frequency', 'stator_amplitude', 'frame_rate', 'drift_time'):
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
-                raise ValueError(f'scenario: {name} must be positive and finite, got {value!r}')
+                raise InputError(f'scenario: {name} must be positive and finite, got {value!r}')
         for name in ('noise_std', 'drift_velocity', 'settle', 'exposure'):
             value = getattr(self, name)
             if not (value >= 0 and math.isfinite(value)):
-                raise ValueError(f'scenario: {name} must be non-negative and finite, '
+                raise InputError(f'scenario: {name} must be non-negative and finite, '
                                  f'got {value!r}')
         if not self.rod_length > self.stator_amplitude:
-            raise ValueError(f'scenario: rod_length {self.rod_length!r} m must exceed the crank '
+            raise InputError(f'scenario: rod_length {self.rod_length!r} m must exceed the crank '
                              f'radius (stator_amplitude) {self.stator_amplitude!r} m')
         if self.exposure > 1.0 / self.frame_rate:
-            raise ValueError(f'scenario: exposure {self.exposure!r} s is longer than a frame '
+            raise InputError(f'scenario: exposure {self.exposure!r} s is longer than a frame '
                              f'({1.0 / self.frame_rate:.6g} s)')
 
     @property
@@ -142,11 +143,11 @@ def scenario_names():
 def get_scenario(name, **overrides):
     """Return the preset scenario ``name`` with fields replaced by ``overrides``."""
     if name not in SCENARIOS:
-        raise ValueError(f'unknown scenario {name!r}; known: {", ".join(SCENARIOS)}')
+        raise InputError(f'unknown scenario {name!r}; known: {", ".join(SCENARIOS)}')
     known = {f.name for f in fields(Scenario)}
     unknown = sorted(set(overrides) - known)
     if unknown:
-        raise ValueError(f'unknown scenario field(s) {", ".join(unknown)}; '
+        raise InputError(f'unknown scenario field(s) {", ".join(unknown)}; '
                          f'known: {", ".join(sorted(known))}')
     return replace(SCENARIOS[name], **overrides)
 
@@ -180,7 +181,7 @@ class BenchIntegrator:
 
     def __init__(self, scenario, *, dt=0.001, time=0.0, crank_angle=-math.pi / 2):
         if not dt > 0:
-            raise ValueError(f'dt must be positive, got {dt!r}')
+            raise InputError(f'dt must be positive, got {dt!r}')
         self.scenario = scenario
         self.dt = dt
         self.time = float(time)
@@ -283,11 +284,11 @@ def simulate(scenario, duration, *, dt=0.001, frame_rate=None):
     """
     frame_rate = scenario.frame_rate if frame_rate is None else frame_rate
     if not (frame_rate > 0 and scenario.exposure <= 1.0 / frame_rate):
-        raise ValueError(f'frame_rate {frame_rate!r} must be positive with frames no shorter '
+        raise InputError(f'frame_rate {frame_rate!r} must be positive with frames no shorter '
                          f'than the exposure ({scenario.exposure:g} s)')
     n_frames = math.floor(duration * frame_rate + 1e-9)
     if n_frames < 2:
-        raise ValueError(f'duration {duration!r} s holds fewer than 2 frames')
+        raise InputError(f'duration {duration!r} s holds fewer than 2 frames')
     omega = scenario.angular_frequency
     time = np.arange(n_frames) / frame_rate
     integrator = BenchIntegrator(scenario, dt=dt, time=-scenario.settle,

@@ -30,17 +30,15 @@ columns and a mark moving at 0.02 m/s smears over 67 px in a 1/60 s exposure.
 
 from dataclasses import dataclass
 import math
-import os
 
-import cv2
 import numpy as np
-from scipy.interpolate import make_interp_spline
 from scipy.special import ndtr
+
+from microball_ros.core.errors import InputError
+from microball_ros.core.motion import as_motion
 
 MARK_SHAPES = ('bar', 'cross')
 PLATES = ('slider', 'stator')
-LOSSLESS_CODEC = 'FFV1'
-LOSSY_CODEC = 'MJPG'
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _SHAPE_PROBE_STEPS = 9
 _MIN_SUBSTEPS = 16
@@ -99,27 +97,27 @@ class CameraConfig:
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f'camera {name} must be positive and finite, got {value!r}')
+                raise InputError(f'camera {name} must be positive and finite, got {value!r}')
         for name in ('psf_sigma_px', 'read_noise_dn', 'plate_level', 'gap_level', 'vignetting',
                      'infrared_gap_level', 'ball_level'):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f'camera {name} must be >= 0 and finite, got {value!r}')
+                raise InputError(f'camera {name} must be >= 0 and finite, got {value!r}')
         if self.exposure > 1.0 / self.fps:
-            raise ValueError(f'camera exposure {self.exposure:g} s exceeds the frame period '
+            raise InputError(f'camera exposure {self.exposure:g} s exceeds the frame period '
                              f'{1.0 / self.fps:g} s')
         if not 0 <= self.mark_depth <= 1:
-            raise ValueError(f'camera mark_depth must be in [0, 1], got {self.mark_depth!r}')
+            raise InputError(f'camera mark_depth must be in [0, 1], got {self.mark_depth!r}')
         if self.mark_shape not in MARK_SHAPES:
-            raise ValueError(f'camera mark_shape must be one of {", ".join(MARK_SHAPES)}, '
+            raise InputError(f'camera mark_shape must be one of {", ".join(MARK_SHAPES)}, '
                              f'got {self.mark_shape!r}')
         for name in ('slider_band', 'stator_band'):
             top, bottom = getattr(self, name)
             if not 0 <= top < bottom <= 1:
-                raise ValueError(f'camera {name} must be (top, bottom) with 0 <= top < bottom '
+                raise InputError(f'camera {name} must be (top, bottom) with 0 <= top < bottom '
                                  f'<= 1, got {(top, bottom)!r}')
         if self.slider_band[1] > self.stator_band[0]:
-            raise ValueError('camera slider_band must lie above stator_band')
+            raise InputError('camera slider_band must lie above stator_band')
 
     def origin_px(self, plate):
         """Return the image column of the mark centre of ``plate`` at position 0."""
@@ -229,7 +227,7 @@ class RenderedVideo:
 
 def _check_plate(plate):
     if plate not in PLATES:
-        raise ValueError(f'plate must be one of {", ".join(PLATES)}, got {plate!r}')
+        raise InputError(f'plate must be one of {", ".join(PLATES)}, got {plate!r}')
     return plate
 
 
@@ -260,42 +258,6 @@ def box_profile(pixels, centers, half_width, sigma):
     upper = edge_antiderivative(rel + half_width, sigma).mean(axis=0)
     lower = edge_antiderivative(rel - half_width, sigma).mean(axis=0)
     return np.diff(upper - lower)
-
-
-def as_motion(spec):
-    """Return a vectorised position function t (s) -> x (m) from a motion specification.
-
-    ``spec`` is a callable (used as is), a pair ``(times, positions)`` of sampled arrays
-    (interpolated by a cubic spline; asking for a time outside the samples raises ValueError),
-    or a number (a still plate).
-    """
-    if callable(spec):
-        def motion(t):
-            t = np.asarray(t, dtype=float)
-            return np.broadcast_to(np.asarray(spec(t), dtype=float), t.shape)
-        return motion
-    if isinstance(spec, (int, float, np.floating, np.integer)):
-        value = float(spec)
-        return lambda t: np.full(np.shape(t), value)
-    try:
-        times, positions = (np.asarray(a, dtype=float) for a in spec)
-    except (TypeError, ValueError):
-        raise ValueError('motion must be a callable, a number or a (times, positions) '
-                         'pair') from None
-    if times.ndim != 1 or times.shape != positions.shape or times.size < 2:
-        raise ValueError('motion samples must be two 1-D arrays of equal length >= 2')
-    if np.any(np.diff(times) <= 0):
-        raise ValueError('motion sample times must increase strictly')
-    spline = make_interp_spline(times, positions, k=min(3, times.size - 1))
-    lo, hi = times[0], times[-1]
-
-    def sampled(t):
-        t = np.asarray(t, dtype=float)
-        if t.size and (t.min() < lo - 1e-12 or t.max() > hi + 1e-12):
-            raise ValueError(f'motion samples cover t in [{lo:g}, {hi:g}] s, a frame needs '
-                             f't in [{t.min():g}, {t.max():g}] s')
-        return spline(t)
-    return sampled
 
 
 class SyntheticCamera:
@@ -470,7 +432,7 @@ class SyntheticCamera:
         y0 = max(int(math.floor(row - half_h - pad_y)), 0)
         y1 = min(int(math.ceil(row + half_h + pad_y)) + 1, cfg.height)
         if x1 <= x0 or y1 <= y0:
-            raise ValueError(f'the {plate} mark never enters the frame')
+            raise InputError(f'the {plate} mark never enters the frame')
         return (x0, y0, x1 - x0, y1 - y0)
 
 
@@ -487,7 +449,7 @@ def render_frames(stator_motion, slider_motion, n_frames, config=None, seed=0, n
     others every ``ball_pitch``).
     """
     if int(n_frames) != n_frames or n_frames < 1:
-        raise ValueError(f'n_frames must be a positive integer, got {n_frames!r}')
+        raise InputError(f'n_frames must be a positive integer, got {n_frames!r}')
     camera = SyntheticCamera(config, seed)
     stator, slider = as_motion(stator_motion), as_motion(slider_motion)
     cfg = camera.config
@@ -513,89 +475,3 @@ def render_frames(stator_motion, slider_motion, n_frames, config=None, seed=0, n
     truth = GroundTruth(time=np.array([r.time for r in rows]), **marks)
     rois = {plate: camera.suggest_roi(plate, marks[plate].span_px) for plate in PLATES}
     return RenderedVideo(frames=frames, truth=truth, rois=rois, config=cfg)
-
-
-def paper_motion(stator_amplitude=1.2e-3, slider_amplitude=1.1e-3, frequency=2.95,
-                 phase_lag=0.4, slider_drift=0.0):
-    """Return (stator, slider) sinusoidal position functions in the paper's regime.
-
-    The stator follows ``A_s sin(w t)``, the slider ``A_l sin(w t - phase_lag) + drift * t``;
-    positions in m, ``slider_drift`` in m/s. A convenience for tests, benchmarks and demos.
-    """
-    omega = 2.0 * math.pi * frequency
-
-    def stator(t):
-        return stator_amplitude * np.sin(omega * np.asarray(t, dtype=float))
-
-    def slider(t):
-        t = np.asarray(t, dtype=float)
-        return slider_amplitude * np.sin(omega * t - phase_lag) + slider_drift * t
-    return stator, slider
-
-
-def write_video(path, frames, fps=30.0, codec=LOSSLESS_CODEC):
-    """Write mono8 frames to a video file with OpenCV (FFmpeg backend) and return the path.
-
-    ``codec`` is a FourCC: 'FFV1' (lossless; .mkv or .avi) or 'MJPG' (lossy, like a DV camera;
-    .avi), or any FourCC this OpenCV build writes (see ``codec_available``). The FFmpeg
-    backend ignores a quality setting, so the lossy codecs use FFmpeg's defaults. Raises
-    ValueError if the writer cannot be opened or the frames are not 2-D uint8 of one size.
-    """
-    frames = [np.asarray(f) for f in frames]
-    if not frames:
-        raise ValueError('no frames to write')
-    height, width = frames[0].shape[:2]
-    if len(codec) != 4:
-        raise ValueError(f'codec must be a 4-character FourCC, got {codec!r}')
-    for frame in frames:
-        if frame.shape != (height, width) or frame.dtype != np.uint8:
-            raise ValueError('frames must all be 2-D uint8 arrays of the same size')
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    writer = cv2.VideoWriter(os.fspath(path), cv2.VideoWriter_fourcc(*codec), float(fps),
-                             (width, height), isColor=False)
-    if not writer.isOpened():
-        raise ValueError(f'{path}: this OpenCV build cannot write {codec!r} video')
-    try:
-        for frame in frames:
-            writer.write(frame)
-    finally:
-        writer.release()
-    return path
-
-
-def write_image_sequence(directory, frames, pattern='frame_{:06d}.png'):
-    """Write frames as numbered lossless images into ``directory``; return the file paths."""
-    os.makedirs(directory, exist_ok=True)
-    paths = []
-    for index, frame in enumerate(frames):
-        path = os.path.join(directory, pattern.format(index))
-        if not cv2.imwrite(path, np.asarray(frame)):
-            raise ValueError(f'{path}: cannot write image')
-        paths.append(path)
-    return paths
-
-
-def codec_available(codec, suffix='.avi', directory=None):
-    """Return True if this OpenCV build writes and reads back ``codec`` video in ``suffix``.
-
-    Writes two tiny frames into a temporary file (in ``directory`` if given) and removes it.
-    """
-    import tempfile
-
-    with tempfile.TemporaryDirectory(dir=directory) as tmp:
-        path = os.path.join(tmp, f'probe{suffix}')
-        writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*codec), 30.0, (32, 24),
-                                 isColor=False)
-        if not writer.isOpened():
-            return False
-        for value in (60, 180):
-            writer.write(np.full((24, 32), value, dtype=np.uint8))
-        writer.release()
-        capture = cv2.VideoCapture(path)
-        try:
-            ok, frame = capture.read()
-        finally:
-            capture.release()
-        return bool(ok) and frame is not None and frame.shape[:2] == (24, 32)
-

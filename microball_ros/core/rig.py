@@ -13,6 +13,8 @@ import math
 import numpy as np
 
 from microball_ros.core import bench, camera
+from microball_ros.core.errors import InputError
+from microball_ros.core.motion import as_motion
 
 
 @dataclass(frozen=True)
@@ -75,7 +77,7 @@ def render_bench(scenario, duration, config=None, seed=None):
     config = camera_for(scenario, config)
     n_frames = math.floor(duration * config.fps + 1e-9)
     if n_frames < 1:
-        raise ValueError(f'duration {duration!r} s holds no frame at {config.fps:g} fps')
+        raise InputError(f'duration {duration!r} s holds no frame at {config.fps:g} fps')
     motion = rig_motion(scenario, n_frames / config.fps + 1.0 / config.fps)
     video = camera.render_frames((motion.time, motion.stator_position),
                                  (motion.time, motion.slider_position), n_frames, config,
@@ -163,8 +165,8 @@ class RigStepper:
         # Keep only the samples this frame's exposure needs (plus a margin for the spline).
         samples = np.array([s for s in self._samples if s[0] >= start - 3 * self.dt])
         stator, slider = (samples[:, 0], samples[:, 1]), (samples[:, 0], samples[:, 2])
-        image, truth = self.camera.render_frame(self.index, camera.as_motion(stator),
-                                                camera.as_motion(slider))
+        image, truth = self.camera.render_frame(self.index, as_motion(stator),
+                                                as_motion(slider))
         self._samples = self._samples[-4:]
         frame = RigFrame(index=self.index, stamp=middle, image=image, truth=truth, state=state,
                          crank_angular_velocity=omega)

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from microball_ros.core import estimation
+from microball_ros.core.errors import InputError
+from microball_ros.core.harmonics import fundamental_frequency
 
 
 @dataclass(frozen=True)
@@ -60,11 +61,16 @@ class WindowSettings:
         return None
 
 
-def _frequency_or_nan(stator, dt):
+def _frequency_or_none(stator, dt):
     try:
-        return estimation.fundamental_frequency(stator, dt)
+        return fundamental_frequency(stator, dt)
     except ValueError:
-        return float('nan')
+        return None
+
+
+def _frequency_or_nan(stator, dt):
+    frequency = _frequency_or_none(stator, dt)
+    return float('nan') if frequency is None else frequency
 
 
 class PositionWindower:
@@ -87,7 +93,7 @@ class PositionWindower:
         self.settings = settings or WindowSettings()
         reason = self.settings.check()
         if reason:
-            raise ValueError(reason)
+            raise InputError(reason)
         self._rows = []  # (stamp, frame_index, stator, slider)
 
     @property
@@ -132,11 +138,10 @@ class PositionWindower:
         stator = data[:, 2]
         # Wait up to window_periods periods of the slowest frequency for an oscillation.
         waited = duration * settings.min_frequency >= settings.window_periods
-        try:
-            if np.ptp(stator) / 2 < settings.min_amplitude:
-                raise ValueError('no oscillation')
-            frequency = estimation.fundamental_frequency(stator, dt)
-        except ValueError:
+        frequency = None
+        if np.ptp(stator) / 2 >= settings.min_amplitude:
+            frequency = _frequency_or_none(stator, dt)
+        if frequency is None:
             return self._drop(len(rows), 'stator not oscillating') if waited else []
         needed = int(round(settings.window_periods / (frequency * dt)))
         if duration * frequency < 2 or len(rows) < needed:
@@ -152,7 +157,7 @@ class PositionWindower:
             if not change <= settings.frequency_tolerance:  # NaN too: a segment at rest
                 return self._drop(int(bounds[k]), f'frequency changed ({local[0]:.3f} -> '
                                                   f'{local[k]:.3f} Hz)')
-        frequency = estimation.fundamental_frequency(window[:, 2], dt)
+        frequency = fundamental_frequency(window[:, 2], dt)
         hop = max(1, int(round(settings.hop_periods / (frequency * dt))))
         del self._rows[:hop]
         return [Window(time=window[:, 0], stator_position=window[:, 2],
