@@ -30,12 +30,14 @@ columns and a mark moving at 0.02 m/s smears over 67 px in a 1/60 s exposure.
 
 from dataclasses import dataclass
 import math
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.special import ndtr
 
 from microball_ros.core.errors import InputError
-from microball_ros.core.motion import as_motion
+from microball_ros.core.motion import Motion, as_motion
 
 MARK_SHAPES = ('bar', 'cross')
 PLATES = ('slider', 'stator')
@@ -68,8 +70,8 @@ class CameraConfig:
     meters_per_pixel: float = 5e-6
     slider_band: tuple = (0.04, 0.40)
     stator_band: tuple = (0.60, 0.96)
-    slider_origin_px: float = None
-    stator_origin_px: float = None
+    slider_origin_px: float | None = None
+    stator_origin_px: float | None = None
     mark_shape: str = 'bar'
     mark_width: float = 100e-6
     mark_height: float = 250e-6
@@ -89,7 +91,7 @@ class CameraConfig:
     ball_diameter: float = 285e-6
     ball_pitch: float = 700e-6
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         """Reject parameters that cannot describe a camera, with a one-line message."""
         positive = ('width', 'height', 'fps', 'exposure', 'meters_per_pixel', 'mark_width',
                     'mark_height', 'mark_stroke', 'electrons_per_dn', 'max_substep_px',
@@ -119,12 +121,12 @@ class CameraConfig:
         if self.slider_band[1] > self.stator_band[0]:
             raise InputError('camera slider_band must lie above stator_band')
 
-    def origin_px(self, plate):
+    def origin_px(self, plate: str) -> float:
         """Return the image column of the mark centre of ``plate`` at position 0."""
         origin = getattr(self, f'{_check_plate(plate)}_origin_px')
         return (self.width - 1) / 2.0 if origin is None else float(origin)
 
-    def ball_origin_px(self):
+    def ball_origin_px(self) -> float:
         """Return the image column of a ball centre when both plates are at position 0.
 
         The balls roll without slipping, so the ball train sits at the mean of the slider and
@@ -132,28 +134,28 @@ class CameraConfig:
         """
         return (self.origin_px('slider') + self.origin_px('stator')) / 2.0
 
-    def mark_row_px(self, plate):
+    def mark_row_px(self, plate: str) -> float:
         """Return the image row of the centre of the mark on ``plate``."""
         top, bottom = getattr(self, f'{_check_plate(plate)}_band')
         return (top + bottom) / 2.0 * self.height - 0.5
 
-    def to_px(self, plate, position):
+    def to_px(self, plate: str, position: npt.ArrayLike) -> np.ndarray:
         """Convert plate position(s) in m to the image column(s) of its mark centre."""
         return self.origin_px(plate) + np.asarray(position, dtype=float) / self.meters_per_pixel
 
-    def frame_time(self, index):
+    def frame_time(self, index: npt.ArrayLike) -> np.ndarray:
         """Return the mid-exposure time (s) of frame(s) ``index``."""
         return self.start_time + np.asarray(index, dtype=float) / self.fps + self.exposure / 2.0
 
-    def noise_variance(self, expected):
+    def noise_variance(self, expected: npt.ArrayLike) -> np.ndarray:
         """Return the per-pixel noise variance (DN^2) of a frame with this expected value.
 
         Shot noise, read noise and the rounding to integers (1/12 DN^2).
         """
-        expected = np.clip(np.asarray(expected, dtype=float), 0.0, None)
-        return expected / self.electrons_per_dn + self.read_noise_dn ** 2 + 1.0 / 12.0
+        level = np.clip(np.asarray(expected, dtype=float), 0.0, None)
+        return level / self.electrons_per_dn + self.read_noise_dn ** 2 + 1.0 / 12.0
 
-    def mark_rectangles_px(self):
+    def mark_rectangles_px(self) -> tuple[tuple[float, float, float], ...]:
         """Return the mark as signed rectangles ``(half_width, half_height, sign)`` in px.
 
         The mark's indicator is the signed sum of the rectangles' indicators, all centred on the
@@ -167,7 +169,7 @@ class CameraConfig:
         return ((half_s, half_h, 1.0), (half_w, half_s, 1.0),
                 (min(half_s, half_w), min(half_s, half_h), -1.0))
 
-    def mark_half_extent_px(self):
+    def mark_half_extent_px(self) -> tuple[float, float]:
         """Return the half width and half height (px) of the mark's bounding box."""
         rects = self.mark_rectangles_px()
         return max(r[0] for r in rects), max(r[1] for r in rects)
@@ -196,7 +198,7 @@ class GroundTruth:
     time: np.ndarray
     slider: MarkTruth
     stator: MarkTruth
-    balls: MarkTruth = None
+    balls: MarkTruth | None = None
 
 
 @dataclass(frozen=True)
@@ -231,7 +233,7 @@ def _check_plate(plate):
     return plate
 
 
-def edge_antiderivative(u, sigma):
+def edge_antiderivative(u: npt.ArrayLike, sigma: float) -> np.ndarray:
     """Return the integral from -inf to ``u`` of the Gaussian-blurred unit step Phi(v / sigma).
 
     ``u * Phi(u / sigma) + sigma * phi(u / sigma)``; for ``sigma == 0``, ``max(u, 0)``.
@@ -243,7 +245,8 @@ def edge_antiderivative(u, sigma):
     return u * ndtr(z) + sigma * np.exp(-0.5 * z * z) / _SQRT_2PI
 
 
-def box_profile(pixels, centers, half_width, sigma):
+def box_profile(pixels: npt.ArrayLike, centers: npt.ArrayLike, half_width: float,
+                sigma: float) -> np.ndarray:
     """Return the pixel-integrated, PSF-blurred profile of a 1-D box, averaged over centres.
 
     ``pixels`` are pixel-centre coordinates (pixel ``k`` covers [k - 0.5, k + 0.5]);
@@ -267,7 +270,7 @@ class SyntheticCamera:
     rendered alone (for example by a node, on demand) and equals the same frame of a batch.
     """
 
-    def __init__(self, config=None, seed=0):
+    def __init__(self, config: CameraConfig | None = None, seed: int = 0):
         """Precompute the static scene (plate bands, illumination) for ``config``."""
         self.config = CameraConfig() if config is None else config
         self.seed = int(seed)
@@ -303,7 +306,7 @@ class SyntheticCamera:
         ball_top, ball_bottom = cfg.slider_band[1], cfg.stator_band[0]
         self._ball_row = (ball_top + ball_bottom) / 2.0 * cfg.height - 0.5
 
-    def exposure_times(self, index, stator, slider):
+    def exposure_times(self, index: int, stator: Motion, slider: Motion) -> np.ndarray:
         """Return the sub-exposure sample times (s) of frame ``index`` for these motions.
 
         Midpoints of equal sub-intervals, enough that no mark moves more than
@@ -320,7 +323,8 @@ class SyntheticCamera:
         n = max(_MIN_SUBSTEPS, int(math.ceil(path / cfg.max_substep_px)))
         return start + cfg.exposure * (np.arange(n) + 0.5) / n
 
-    def expected_frame(self, index, stator, slider):
+    def expected_frame(self, index: int, stator: Any,
+                       slider: Any) -> tuple[np.ndarray, FrameTruth]:
         """Return the noiseless frame (float, DN, before clipping) and its FrameTruth.
 
         ``stator`` and ``slider`` are motion specifications (see ``as_motion``).
@@ -330,7 +334,7 @@ class SyntheticCamera:
         times = self.exposure_times(index, stator, slider)
         t_mid = float(cfg.frame_time(index))
         scene = np.repeat(self._base_rows[:, None], cfg.width, axis=1)
-        truth = {}
+        truth: dict[str, Any] = {}
         centers = {}
         for plate, motion in (('slider', slider), ('stator', stator)):
             x = motion(times)
@@ -385,7 +389,7 @@ class SyntheticCamera:
             patch = scene[lo:hi, left:right]
             patch += cover * (cfg.ball_level - patch)
 
-    def add_noise(self, expected, index):
+    def add_noise(self, expected: np.ndarray, index: int) -> np.ndarray:
         """Return the mono8 frame for a noiseless ``expected`` frame: noise, rounding, clipping.
 
         Uses the random stream of frame ``index``. Shot noise is Poisson where fewer than
@@ -404,7 +408,8 @@ class SyntheticCamera:
             dn[low] = electrons / gain + cfg.read_noise_dn * rng.standard_normal(electrons.size)
         return np.clip(np.rint(dn), 0, 255).astype(np.uint8)
 
-    def render_frame(self, index, stator, slider, noise=True):
+    def render_frame(self, index: int, stator: Any, slider: Any,
+                     noise: bool = True) -> tuple[np.ndarray, FrameTruth]:
         """Return frame ``index`` (H x W uint8) and its FrameTruth.
 
         With ``noise=False`` the noiseless frame is only rounded and clipped.
@@ -414,7 +419,8 @@ class SyntheticCamera:
             return self.add_noise(expected, index), truth
         return np.clip(np.rint(expected), 0, 255).astype(np.uint8), truth
 
-    def suggest_roi(self, plate, span_px, margin_px=24):
+    def suggest_roi(self, plate: str, span_px: tuple[float, float],
+                    margin_px: float = 24) -> tuple[int, int, int, int]:
         """Return an ROI (x, y, w, h) containing the mark of ``plate`` for centres in ``span_px``.
 
         ``span_px`` is the (min, max) image column of the mark centre; the ROI adds the mark's
@@ -436,7 +442,9 @@ class SyntheticCamera:
         return (x0, y0, x1 - x0, y1 - y0)
 
 
-def render_frames(stator_motion, slider_motion, n_frames, config=None, seed=0, noise=True):
+def render_frames(stator_motion: Any, slider_motion: Any, n_frames: int,
+                  config: CameraConfig | None = None, seed: int = 0,
+                  noise: bool = True) -> RenderedVideo:
     """Render ``n_frames`` frames of the two marks and return a RenderedVideo.
 
     ``stator_motion`` and ``slider_motion`` map time (s, array) to position (m): callables,
@@ -456,10 +464,10 @@ def render_frames(stator_motion, slider_motion, n_frames, config=None, seed=0, n
     frames = np.empty((int(n_frames), cfg.height, cfg.width), dtype=np.uint8)
     rows = []
     for index in range(int(n_frames)):
-        frames[index], truth = camera.render_frame(index, stator, slider, noise=noise)
-        rows.append(truth)
-    marks = {}
-    for plate in ('slider', 'stator') + (('balls',) if cfg.infrared else ()):
+        frames[index], frame_truth = camera.render_frame(index, stator, slider, noise=noise)
+        rows.append(frame_truth)
+    marks: dict[str, MarkTruth] = {}
+    for plate in PLATES + (('balls',) if cfg.infrared else ()):
         mid = np.array([getattr(r, f'{plate}_mid') for r in rows])
         mean = np.array([getattr(r, f'{plate}_mean') for r in rows])
         if plate == 'balls':

@@ -22,6 +22,7 @@ from types import MappingProxyType
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy import fft, signal
 
 from microball_ros.core.errors import InputError
@@ -66,7 +67,7 @@ def _estimate(method, dt, index, velocity, acceleration, **extra):
                     method=method, sample_period=float(dt), **extra)
 
 
-def forward_difference(x, dt):
+def forward_difference(x: npt.ArrayLike, dt: float) -> Estimate:
     """Estimate velocity and acceleration by the paper's forward differences.
 
     ``v[n] = (x[n] - x[n-1]) / dt`` and ``a[n] = (x[n] - 2 x[n-1] + x[n-2]) / dt^2``, stamped
@@ -80,7 +81,7 @@ def forward_difference(x, dt):
     return _estimate('forward', dt, np.arange(2, x.size), velocity[1:], acceleration)
 
 
-def center_difference(x, dt):
+def center_difference(x: npt.ArrayLike, dt: float) -> Estimate:
     """Estimate velocity and acceleration by center differences (eqs. 5, 6).
 
     ``v[n] = (x[n+1] - x[n-1]) / (2 dt)`` and ``a[n] = (x[n+1] - 2 x[n] + x[n-1]) / dt^2`` for
@@ -176,9 +177,12 @@ def _trend(t, x, frequency, order, dt):
     return np.polynomial.Legendre(coefficients[:order + 1], domain=[t[0], t[-1]])
 
 
-def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_periods=None,
-                slow_band=None, edges=None, detrend=None, max_compensation=None,
-                exposure=None, noise_floor=None, fundamental=None):
+def three_stage(x: npt.ArrayLike, dt: float, epsilon: float = 0.02, *, paper: bool = False,
+                compensate: bool = True, whole_periods: bool | None = None,
+                slow_band: float | None = None, edges: str | None = None,
+                detrend: int | bool | None = None, max_compensation: float | None = None,
+                exposure: float | None = None, noise_floor: float | bool | None = None,
+                fundamental: float | None = None) -> Estimate:
     """Estimate velocity and acceleration by the paper's three-stage algorithm (Fig. 3).
 
     1. center difference of the positions;
@@ -242,7 +246,7 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
     harmonics under the threshold.
     """
     x = check_positions(x, dt, 5)
-    options = dict(PAPER_OPTIONS if paper else RECOMMENDED_OPTIONS)
+    options: dict[str, Any] = dict(PAPER_OPTIONS if paper else RECOMMENDED_OPTIONS)
     explicit = {'whole_periods': whole_periods, 'slow_band': slow_band, 'edges': edges,
                 'detrend': detrend, 'max_compensation': max_compensation,
                 'exposure': exposure, 'noise_floor': noise_floor}
@@ -267,7 +271,7 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
     # Length of the FFT'd center differences, and the positions they need.
     length = x.size if circular else x.size - 2
     if options['whole_periods']:
-        length = _whole_period_length(length, fundamental * dt)
+        length = _whole_period_length(length, options['fundamental'] * dt)
     window = x[:length] if circular else x[:length + 2]
     t = np.arange(window.size) * dt
     if order is not False:
@@ -293,7 +297,7 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
                      acceleration_frequencies=acceleration_frequencies, options=options)
 
 
-def lowpass_forward(x, dt, cutoff=6.0, order=2):
+def lowpass_forward(x: npt.ArrayLike, dt: float, cutoff: float = 6.0, order: int = 2) -> Estimate:
     """Low-pass the positions with a causal Butterworth filter, then forward-difference them.
 
     The paper's Fig. 7(b) (cutoff in Hz). The filter starts in steady state at the first
@@ -311,7 +315,7 @@ def lowpass_forward(x, dt, cutoff=6.0, order=2):
                      options={'cutoff': cutoff, 'order': order})
 
 
-def savitzky_golay(x, dt, window=7, polyorder=5):
+def savitzky_golay(x: npt.ArrayLike, dt: float, window: int = 7, polyorder: int = 5) -> Estimate:
     """Estimate velocity and acceleration by Savitzky-Golay differentiating filters.
 
     Local least-squares polynomials of ``polyorder`` over ``window`` samples
@@ -328,7 +332,7 @@ def savitzky_golay(x, dt, window=7, polyorder=5):
                      options={'window': window, 'polyorder': polyorder})
 
 
-def spectral(x, dt, cutoff=None):
+def spectral(x: npt.ArrayLike, dt: float, cutoff: float | None = None) -> Estimate:
     """Differentiate in the frequency domain, keeping the components at or below ``cutoff``.
 
     Multiplies the FFT by ``i w`` and ``-w^2`` (the Nyquist bin is dropped from the velocity);
@@ -359,14 +363,15 @@ _METHODS = MappingProxyType({
 METHODS = tuple(_METHODS)
 
 
-def estimate(x, dt, method='three-stage', **options):
+def estimate(x: npt.ArrayLike, dt: float, method: str = 'three-stage', **options: Any) -> Estimate:
     """Estimate velocity and acceleration of ``x`` by the named method (one of METHODS)."""
     if method not in _METHODS:
         raise InputError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
     return _METHODS[method](x, dt, **options)
 
 
-def estimate_relative(time, stator, slider, method='three-stage', **options):
+def estimate_relative(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt.ArrayLike,
+                      method: str = 'three-stage', **options: Any) -> Estimate:
     """Estimate the relative velocity and the slider acceleration on one time base.
 
     As in the paper, the velocity is estimated from the relative position

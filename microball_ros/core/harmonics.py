@@ -9,12 +9,13 @@ fundamental (``fundamental_phasor``), fitted together with its harmonics and a t
 """
 
 import numpy as np
+import numpy.typing as npt
 from scipy import fft, optimize, signal
 
 from microball_ros.core.errors import InputError
 
 
-def check_positions(x, dt, minimum):
+def check_positions(x: npt.ArrayLike, dt: float, minimum: int) -> np.ndarray:
     """Return x as a finite 1-D float array of at least ``minimum`` samples, checking dt."""
     x = np.asarray(x, dtype=float)
     if x.ndim != 1 or x.size < minimum:
@@ -26,12 +27,13 @@ def check_positions(x, dt, minimum):
     return x
 
 
-def harmonics_below_nyquist(frequency, dt):
+def harmonics_below_nyquist(frequency: float, dt: float) -> int:
     """Return how many harmonics of ``frequency`` (the fundamental included) lie below Nyquist."""
     return max(1, int(np.ceil(0.5 / (frequency * dt))) - 1)
 
 
-def harmonic_design(t, frequency, harmonics, order):
+def harmonic_design(t: np.ndarray, frequency: float, harmonics: int,
+                    order: int) -> np.ndarray:
     """Return the least-squares design: a polynomial of ``order`` in t (-1: none), then cos/sin."""
     span = t[-1] - t[0]
     u = 2 * (t - t[0]) / span - 1
@@ -42,7 +44,7 @@ def harmonic_design(t, frequency, harmonics, order):
     return np.column_stack(columns)
 
 
-def fundamental_frequency(x, dt):
+def fundamental_frequency(x: npt.ArrayLike, dt: float) -> float:
     """Return the fundamental frequency (Hz) of an oscillating record, e.g. the stator.
 
     The peak of the Hann-windowed, zero-padded spectrum of the linearly detrended record
@@ -78,7 +80,8 @@ def fundamental_frequency(x, dt):
     return float(result.x)
 
 
-def fundamental_phasor(t, y, frequency, harmonics):
+def fundamental_phasor(t: np.ndarray, y: np.ndarray, frequency: float,
+                       harmonics: int) -> complex:
     """Return the fundamental of y as a complex amplitude ``A e^{i phase}`` (A sin(wt + phase)).
 
     Least squares on a line plus the harmonic series, so offsets, a slow trend and the other

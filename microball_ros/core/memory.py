@@ -9,12 +9,14 @@ core.harmonics) is re-exported here as the frequency the test runs at.
 """
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy import stats
 
 from microball_ros.core.errors import InputError
-from microball_ros.core.estimation import estimate_relative
+from microball_ros.core.estimation import Estimate, estimate_relative
 from microball_ros.core.harmonics import (
     fundamental_frequency,
     fundamental_phasor,
@@ -63,8 +65,9 @@ def _memoryless(phase_difference, uncertainty, k, margin):
     return bool(abs(np.pi - phase_difference) <= k * uncertainty + margin)
 
 
-def memory_test(time, v_rel, a_slid, frequency, *, k=3.0, margin=0.1, blocks=8,
-                harmonics=None):
+def memory_test(time: npt.ArrayLike, v_rel: npt.ArrayLike, a_slid: npt.ArrayLike,
+                frequency: float, *, k: float = 3.0, margin: float = 0.1, blocks: int = 8,
+                harmonics: int | None = None) -> MemoryTest:
     """Compare the fundamental phases of slider acceleration and relative velocity.
 
     Static (memoryless) friction ``a_slid = -L(v_rel)`` puts them pi apart; a lag or
@@ -133,8 +136,10 @@ def memory_test(time, v_rel, a_slid, frequency, *, k=3.0, margin=0.1, blocks=8,
         periods=count * per_block, blocks=count, k=k, margin=margin)
 
 
-def relative_memory_test(time, stator, slider, method='three-stage', *, frequency=None, k=3.0,
-                         margin=0.1, blocks=8, **options):
+def relative_memory_test(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt.ArrayLike,
+                         method: str = 'three-stage', *, frequency: float | None = None,
+                         k: float = 3.0, margin: float = 0.1, blocks: int = 8,
+                         **options: Any) -> tuple[Estimate, MemoryTest]:
     """Estimate v_rel and a_slid of a record and run the memory test with an honest uncertainty.
 
     Returns ``(estimate, test)``: the :func:`estimate_relative` result for ``method`` and

@@ -6,15 +6,21 @@ for a still plate), and ``paper_motion``, the paper's sinusoidal stator and lagg
 for tests, benchmarks and demos.
 """
 
+from collections.abc import Callable
 import math
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.interpolate import make_interp_spline
 
 from microball_ros.core.errors import InputError
 
+# A plate's position (m) as a function of time (s), vectorised over arrays of times.
+Motion = Callable[[npt.ArrayLike], np.ndarray]
 
-def as_motion(spec):
+
+def as_motion(spec: Any) -> Motion:
     """Return a vectorised position function t (s) -> x (m) from a motion specification.
 
     ``spec`` is a callable (used as is), a pair ``(times, positions)`` of sampled arrays
@@ -50,8 +56,9 @@ def as_motion(spec):
     return sampled
 
 
-def paper_motion(stator_amplitude=1.2e-3, slider_amplitude=1.1e-3, frequency=2.95,
-                 phase_lag=0.4, slider_drift=0.0):
+def paper_motion(stator_amplitude: float = 1.2e-3, slider_amplitude: float = 1.1e-3,
+                 frequency: float = 2.95, phase_lag: float = 0.4,
+                 slider_drift: float = 0.0) -> tuple[Motion, Motion]:
     """Return (stator, slider) sinusoidal position functions in the paper's regime.
 
     The stator follows ``A_s sin(w t)``, the slider ``A_l sin(w t - phase_lag) + drift * t``;

@@ -44,7 +44,7 @@ class WindowSettings:
     frequency_tolerance: float = 0.02
     stamp_tolerance: float = 0.05
 
-    def check(self):
+    def check(self) -> str | None:
         """Return None if the settings are usable, else a one-line reason."""
         if not self.window_periods >= 4:
             return 'window_periods must be at least 4 (the memory test needs 4 periods)'
@@ -89,19 +89,20 @@ class PositionWindower:
     * A stator that does not oscillate (amplitude below ``min_amplitude``, m) is skipped.
     """
 
-    def __init__(self, settings=None):
+    def __init__(self, settings: WindowSettings | None = None):
         self.settings = settings or WindowSettings()
         reason = self.settings.check()
         if reason:
             raise InputError(reason)
-        self._rows = []  # (stamp, frame_index, stator, slider)
+        self._rows: list[tuple[float, int, float, float]] = []  # stamp, index, stator, slider
 
     @property
-    def pending(self):
+    def pending(self) -> int:
         """Return how many samples wait for a window."""
         return len(self._rows)
 
-    def push(self, stamp, frame_index, stator, slider, valid=True):
+    def push(self, stamp: float, frame_index: int, stator: float, slider: float,
+             valid: bool = True) -> list[Window | Skip]:
         """Add one sample; return the list of Window and Skip events it completes."""
         events = []
         if not (valid and np.isfinite(stator) and np.isfinite(slider)):

@@ -34,7 +34,7 @@ IMAGE_ENCODINGS = {'mono8': (1, None), '8UC1': (1, None),
 
 
 def image_to_gray(encoding: str, height: int, width: int, step: int,
-                  data: bytes | npt.ArrayLike) -> np.ndarray:
+                  data: Any) -> np.ndarray:
     """Return the pixels of a sensor_msgs/Image (its fields) as a gray H x W uint8 array.
 
     Works on the fields of any Image object (rclpy's or rosbags'); InputError (one line) for
@@ -202,7 +202,7 @@ def write_video(path: str | os.PathLike, frames: Any, fps: float = 30.0,
             raise InputError('frames must all be 2-D uint8 arrays of the same size')
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)
-    writer = cv2.VideoWriter(os.fspath(path), cv2.VideoWriter_fourcc(*codec), float(fps),
+    writer = cv2.VideoWriter(os.fspath(path), cv2.VideoWriter.fourcc(*codec), float(fps),
                              (width, height), isColor=False)
     if not writer.isOpened():
         raise InputError(f'{path}: this OpenCV build cannot write {codec!r} video')
@@ -234,7 +234,7 @@ def codec_available(codec: str, suffix: str = '.avi', directory: str | None = No
     """
     with tempfile.TemporaryDirectory(dir=directory) as tmp:
         path = os.path.join(tmp, f'probe{suffix}')
-        writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*codec), 30.0, (32, 24),
+        writer = cv2.VideoWriter(path, cv2.VideoWriter.fourcc(*codec), 30.0, (32, 24),
                                  isColor=False)
         if not writer.isOpened():
             return False

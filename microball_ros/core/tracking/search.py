@@ -18,7 +18,7 @@ from microball_ros.core.tracking.profile import smooth
 class Dip(NamedTuple):
     """The located mark: peak column, peak smoothed deficit, first and last column above."""
 
-    index: int
+    column: int
     peak: float
     lo: int
     hi: int

@@ -19,7 +19,7 @@ from microball_ros.core.errors import InputError
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, check_scale, gray_frames, to_gray
 from microball_ros.core.tracking.mark import MarkTracker
-from microball_ros.core.tracking.results import TrackedFrame, TrackResult
+from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
 
 
 class Tracker:
@@ -101,7 +101,8 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
     tracker = Tracker(rois, meters_per_pixel, fps, exposure, start_time, config,
                       frame_size=(first.shape[1], first.shape[0]))
     names = tuple(tracker.marks)
-    stamps, rows = [], []
+    stamps: list[float] = []
+    rows: list[dict[str, MarkMeasurement]] = []
     for frame in sequence:
         if max_frames is not None and len(rows) >= max_frames:
             break
