@@ -18,7 +18,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-import numpy.typing as npt
 
 from microball_ros.core.errors import InputError
 from microball_ros.core.tracking import TrackResult, to_gray, track
