@@ -26,6 +26,9 @@ where column ``k`` is the centre of pixel ``k``.
 
 Default scale: 5 um per pixel, so the paper's +-1.2 mm stator stroke spans 480 of the 720
 columns and a mark moving at 0.02 m/s smears over 67 px in a 1/60 s exposure.
+
+Plate motions are given as core.motion specifications; writing the frames to a video file or
+an image folder is microball_ros.io.video's job.
 """
 
 from dataclasses import dataclass
