@@ -48,7 +48,8 @@ import scipy  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from microball_ros.core import bench  # noqa: E402
-from microball_ros.core.estimation import estimate_relative, fundamental_frequency  # noqa: E402
+from microball_ros.core.estimation import estimate_relative  # noqa: E402
+from microball_ros.core.harmonics import fundamental_frequency  # noqa: E402
 
 try:
     with warnings.catch_warnings():

@@ -31,15 +31,10 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from microball_ros.core.camera import (  # noqa: E402
-    CameraConfig,
-    SyntheticCamera,
-    codec_available,
-    paper_motion,
-    render_frames,
-    write_video,
-)
+from microball_ros.core.camera import CameraConfig, SyntheticCamera, render_frames  # noqa: E402
+from microball_ros.core.motion import paper_motion  # noqa: E402
 from microball_ros.core.tracking import Tracker, track  # noqa: E402
+from microball_ros.io.video import codec_available, track_video, write_video  # noqa: E402
 
 OMEGA = 2 * math.pi * 2.95
 AMPLITUDE = 1.2e-3
@@ -212,7 +207,7 @@ def video_table(n_frames, seed, directory):
             print(f'{codec}: not available in this OpenCV build')
             continue
         path = write_video(os.path.join(directory, f'bench{suffix}'), video.frames, 30.0, codec)
-        rows.append((f'{codec}{suffix}', track(path, video.rois, config.meters_per_pixel)))
+        rows.append((f'{codec}{suffix}', track_video(path, video.rois, config.meters_per_pixel)))
     for label, result in rows:
         values = [rms(result.position_px[p] - getattr(video.truth, p).pixel_mean)[0]
                   for p in ('slider', 'stator')]

@@ -135,8 +135,9 @@ def _frame_tracking(args):
 
 def cmd_track(args):
     """Track the slider and stator marks through a video and write the position CSV."""
-    from microball_ros.core.tracking import check_scale, track
+    from microball_ros.core.tracking import check_scale
     from microball_ros.io.positions_csv import write_positions_csv
+    from microball_ros.io.video import track_video as track
 
     check_scale(args.meters_per_pixel)
     if not os.path.exists(args.video):
@@ -155,7 +156,8 @@ def cmd_track(args):
 
 def cmd_render(args):
     """Render the simulated rig to a video, and print the track command that reads it."""
-    from microball_ros.core import bench, camera, rig
+    from microball_ros.core import bench, rig
+    from microball_ros.io import video as camera  # write_video, LOSSLESS_CODEC moved to io
 
     scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
                                                     if args.seed is not None else {}))

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from microball_ros.cli import main
-from microball_ros.core import bench, camera, rig
+from microball_ros.core import bench, rig
 from microball_ros.io.positions_csv import read_positions_csv, write_positions_csv
+from microball_ros.io.video import write_image_sequence, write_video
 
 
 @pytest.fixture(scope='module')
@@ -17,7 +18,7 @@ def paper_video(tmp_path_factory):
     folder = tmp_path_factory.mktemp('video')
     video, _ = rig.render_bench(bench.get_scenario('paper'), 20.0)
     path = str(folder / 'paper.mkv')
-    camera.write_video(path, video.frames, fps=video.config.fps)
+    write_video(path, video.frames, fps=video.config.fps)
     return folder, path, video
 
 
@@ -71,7 +72,7 @@ def test_a_hidden_mark_leaves_empty_cells_and_is_reacquired(paper_video, tmp_pat
     x, y, w, h = video.rois['slider']
     frames[40:46, y:y + h, x:x + w] = 170  # the mark is covered by a bright particle
     images = tmp_path / 'frames'
-    camera.write_image_sequence(str(images), frames)
+    write_image_sequence(str(images), frames)
     output = tmp_path / 'tracked.csv'
     assert main(_track_args(video, str(images), str(output)) + ['--fps', '30']) == 0
     lines = output.read_text().splitlines()

@@ -6,17 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from microball_ros.core.camera import (
-    CameraConfig,
-    SyntheticCamera,
-    as_motion,
-    box_profile,
-    codec_available,
-    paper_motion,
-    render_frames,
-    write_image_sequence,
-    write_video,
-)
+from microball_ros.core.camera import CameraConfig, SyntheticCamera, box_profile, render_frames
+from microball_ros.core.errors import InputError
+from microball_ros.core.motion import as_motion, paper_motion
+from microball_ros.io.video import codec_available, write_image_sequence, write_video
 
 CONFIG = CameraConfig()
 
@@ -139,9 +132,9 @@ def test_sampled_motion_equals_function_and_checks_its_range():
     np.testing.assert_allclose(by_samples.truth.stator.position_mean,
                                by_function.truth.stator.position_mean, atol=1e-11)
     assert np.mean(by_samples.frames != by_function.frames) < 1e-3
-    with pytest.raises(ValueError, match='cover t in'):
+    with pytest.raises(InputError, match='cover t in'):
         render_frames((times, stator(times)), 0.0, 10, CONFIG)
-    with pytest.raises(ValueError, match='increase'):
+    with pytest.raises(InputError, match='increase'):
         as_motion((times[::-1], times))
 
 
@@ -150,7 +143,7 @@ def test_sampled_motion_equals_function_and_checks_its_range():
     ({'mark_shape': 'star'}, 'mark_shape'), ({'mark_depth': 1.5}, 'mark_depth'),
     ({'slider_band': (0.7, 0.9)}, 'above')])
 def test_bad_configuration_is_rejected(change, match):
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(InputError, match=match):
         replace(CONFIG, **change)
 
 
@@ -203,7 +196,7 @@ def test_lossy_video_is_close(tmp_path):
 
 
 def test_write_video_rejects_bad_input(tmp_path):
-    with pytest.raises(ValueError, match='FourCC'):
+    with pytest.raises(InputError, match='FourCC'):
         write_video(str(tmp_path / 'v.avi'), [np.zeros((8, 8), np.uint8)], codec='FFV')
-    with pytest.raises(ValueError, match='2-D uint8'):
+    with pytest.raises(InputError, match='2-D uint8'):
         write_video(str(tmp_path / 'v.avi'), [np.zeros((8, 8), np.float32)])

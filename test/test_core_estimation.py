@@ -12,20 +12,19 @@ import numpy as np
 import pytest
 from scipy import fft, optimize, signal
 
+from microball_ros.core.errors import InputError
 from microball_ros.core.estimation import (
     METHODS,
     center_difference,
     estimate,
     estimate_relative,
     forward_difference,
-    fundamental_frequency,
     lowpass_forward,
-    memory_test,
-    relative_memory_test,
     savitzky_golay,
     spectral,
     three_stage,
 )
+from microball_ros.core.memory import fundamental_frequency, memory_test, relative_memory_test
 
 FPS = 30.0
 DT = 1 / FPS
@@ -309,9 +308,9 @@ def test_paper_preset_and_explicit_options_are_recorded():
     mixed = three_stage(x, DT, paper=True, whole_periods=True)
     assert mixed.options['whole_periods'] and mixed.options['edges'] == 'trim'
     assert mixed.options['fundamental'] == pytest.approx(2.95, rel=1e-6)
-    with pytest.raises(ValueError, match='edges'):
+    with pytest.raises(InputError, match='edges'):
         three_stage(x, DT, edges='mirror')
-    with pytest.raises(ValueError, match='detrend'):
+    with pytest.raises(InputError, match='detrend'):
         three_stage(x, DT, detrend=-1)
 
 
@@ -332,7 +331,7 @@ def test_exposure_option_undoes_the_averaging_over_each_frame():
 
     assert min(errors()) > 0.003  # the blur alone: 0.4 % at f, 3.6 % at 3 f
     assert max(errors(exposure=exposure)) < 1e-3  # what is left: whole-period rounding
-    with pytest.raises(ValueError, match='exposure'):
+    with pytest.raises(InputError, match='exposure'):
         three_stage(averaged, DT, exposure=2 * DT)
 
 
@@ -401,17 +400,17 @@ def test_every_method_returns_aligned_trimmed_arrays(method):
 
 def test_unknown_method_and_bad_positions_raise_value_error():
     x = np.sin(np.arange(100) * 0.6)
-    with pytest.raises(ValueError, match="unknown method 'kalman'"):
+    with pytest.raises(InputError, match="unknown method 'kalman'"):
         estimate(x, DT, 'kalman')
-    with pytest.raises(ValueError, match='NaN'):
+    with pytest.raises(InputError, match='NaN'):
         estimate(np.where(np.arange(100) == 5, np.nan, x), DT, 'center')
-    with pytest.raises(ValueError, match='at least'):
+    with pytest.raises(InputError, match='at least'):
         forward_difference([1.0, 2.0], DT)
-    with pytest.raises(ValueError, match='sample period'):
+    with pytest.raises(InputError, match='sample period'):
         center_difference(x, 0.0)
-    with pytest.raises(ValueError, match='cutoff'):
+    with pytest.raises(InputError, match='cutoff'):
         lowpass_forward(x, DT, cutoff=20.0)
-    with pytest.raises(ValueError, match='polyorder'):
+    with pytest.raises(InputError, match='polyorder'):
         savitzky_golay(x, DT, window=7, polyorder=1)
 
 
@@ -438,9 +437,9 @@ def test_three_stage_relative_estimate_matches_ground_truth():
     assert relative_rms(result.acceleration, record.a_slid[result.index]) < 0.01
     jittered = record.time.copy()
     jittered[100] += 0.2 * DT
-    with pytest.raises(ValueError, match='uniformly'):
+    with pytest.raises(InputError, match='uniformly'):
         estimate_relative(jittered, record.stator, record.slider)
-    with pytest.raises(ValueError, match='shape'):
+    with pytest.raises(InputError, match='shape'):
         estimate_relative(record.time, record.stator[:-1], record.slider)
 
 
@@ -465,7 +464,7 @@ def test_fundamental_with_crank_slider_harmonics_drift_and_noise(frequency, fps,
 
 
 def test_fundamental_of_a_flat_record_is_an_error():
-    with pytest.raises(ValueError, match='no oscillation'):
+    with pytest.raises(InputError, match='no oscillation'):
         fundamental_frequency(np.zeros(100), DT)
 
 
@@ -563,7 +562,7 @@ def test_memory_test_phases_blocks_and_input_checks():
     assert not test.memoryless and (test.k, test.margin) == (3.0, 0.1)
     assert (test.periods, test.blocks) == (56, 8)  # 59 periods, blocks of 7
     assert memory_test(t, v, a, 2.95, margin=0.35).memoryless
-    with pytest.raises(ValueError, match='at least 4 periods'):
+    with pytest.raises(InputError, match='at least 4 periods'):
         memory_test(t[:30], v[:30], a[:30], 2.95)
-    with pytest.raises(ValueError, match='one length'):
+    with pytest.raises(InputError, match='one length'):
         memory_test(t, v[:-1], a, 2.95)

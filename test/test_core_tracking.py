@@ -2,31 +2,34 @@
 
 from dataclasses import replace
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
-from microball_ros.core.camera import (
-    CameraConfig,
-    SyntheticCamera,
-    codec_available,
-    paper_motion,
-    render_frames,
-    write_image_sequence,
-    write_video,
-)
+from microball_ros.core import tracking
+from microball_ros.core.camera import CameraConfig, SyntheticCamera, render_frames
+from microball_ros.core.errors import InputError
+from microball_ros.core.motion import paper_motion
 from microball_ros.core.tracking import (
-    FrameSource,
     Tracker,
     TrackerConfig,
     check_roi,
     detect_rois,
-    iter_frames,
     parse_roi,
     symmetric_center,
     track,
 )
 from microball_ros.io.positions_csv import read_positions_csv, write_positions_csv
+from microball_ros.io.video import (
+    FrameSource,
+    codec_available,
+    iter_frames,
+    track_video,
+    write_image_sequence,
+    write_video,
+)
 
 CONFIG = CameraConfig()
 NOISIER = replace(CONFIG, electrons_per_dn=8.0, read_noise_dn=2.0)
@@ -223,9 +226,9 @@ def test_lossless_video_and_image_folder_track_like_arrays(tmp_path):
     path = write_video(str(tmp_path / 'marks.mkv'), video.frames, fps=30.0, codec='FFV1')
     source = FrameSource(path)
     assert source.fps == pytest.approx(30.0) and source.frame_size == (720, 480)
-    from_video = track(path, video.rois, SCALE)
+    from_video = track_video(path, video.rois, SCALE)
     write_image_sequence(str(tmp_path / 'frames'), video.frames)
-    from_folder = track(str(tmp_path / 'frames'), video.rois, SCALE, fps=30.0)
+    from_folder = track_video(str(tmp_path / 'frames'), video.rois, SCALE, fps=30.0)
     for other in (from_video, from_folder):
         np.testing.assert_array_equal(other.time, from_arrays.time)
         for plate in ('slider', 'stator'):
@@ -247,11 +250,11 @@ def test_symmetric_center_is_subpixel_exact():
 def test_bad_inputs_fail_with_one_line_messages(tmp_path):
     frames = np.zeros((2, 48, 64), dtype=np.uint8)
     cases = [
-        (lambda: track(str(tmp_path / 'missing.avi'), {'a': (0, 0, 20, 5)}, 1e-6, 30),
+        (lambda: track_video(str(tmp_path / 'missing.avi'), {'a': (0, 0, 20, 5)}, 1e-6, 30),
          'no such file'),
-        (lambda: track(str(_write(tmp_path / 'junk.avi', b'not a video')), {'a': (0, 0, 20, 5)},
-                       1e-6, 30), 'cannot read video'),
-        (lambda: track(str(tmp_path), {'a': (0, 0, 20, 5)}, 1e-6, 30), 'no image files'),
+        (lambda: track_video(str(_write(tmp_path / 'junk.avi', b'not a video')),
+                             {'a': (0, 0, 20, 5)}, 1e-6, 30), 'cannot read video'),
+        (lambda: track_video(str(tmp_path), {'a': (0, 0, 20, 5)}, 1e-6, 30), 'no image files'),
         (lambda: track(frames, {'a': (50, 0, 20, 5)}, 1e-6, 30), 'outside the 64x48 frame'),
         (lambda: track(frames, {'a': (0, 40, 20, 10)}, 1e-6, 30), 'outside the 64x48 frame'),
         (lambda: track(frames, {'a': (-1, 0, 20, 5)}, 1e-6, 30), 'starts outside'),
@@ -269,7 +272,7 @@ def test_bad_inputs_fail_with_one_line_messages(tmp_path):
         (lambda: TrackerConfig(method='magic'), 'method'),
     ]
     for call, match in cases:
-        with pytest.raises(ValueError, match=match) as info:
+        with pytest.raises(InputError, match=match) as info:
             call()
         assert '\n' not in str(info.value)
     assert parse_roi(' 10, 20,30 ,40') == (10, 20, 30, 40)
@@ -294,5 +297,19 @@ def test_rois_are_found_automatically(moving):
     result = track(video.frames, rois, SCALE, fps=30.0)
     for plate in ('slider', 'stator'):
         assert rms(result.position_px[plate] - getattr(video.truth, plate).pixel_mean) < 0.1
-    with pytest.raises(ValueError, match='no marks'):
+    with pytest.raises(InputError, match='no marks'):
         detect_rois(np.full((3, 48, 64), 100, np.uint8))
+
+
+def test_moved_io_names_resolve_from_the_old_path_without_loading_io_on_import():
+    code = ('import sys\n'
+            'import microball_ros.core.tracking as tracking\n'
+            "print('microball_ros.io.video' in sys.modules)\n"
+            'from microball_ros.core.tracking import FrameSource, image_to_gray\n'
+            'from microball_ros.io import video\n'
+            'print(FrameSource is video.FrameSource, image_to_gray is video.image_to_gray)\n')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            check=True)
+    assert result.stdout.split() == ['False', 'True', 'True']
+    with pytest.raises(AttributeError):
+        tracking.__getattr__('no_such_name')

@@ -14,14 +14,17 @@ in the paper, and a record's time 0 comes after ``settle`` seconds of run-in.
 from dataclasses import dataclass, field, fields, replace
 import math
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from scipy.signal import lfilter
 
 from microball_ros.core import friction
+from microball_ros.core.errors import InputError
 
 
-def crank_slider_position(theta, r, rod):
+def crank_slider_position(theta: npt.ArrayLike, r: float, rod: float) -> np.ndarray:
     """Return the crank-slider position x = r cos(theta) + sqrt(l^2 - r^2 sin^2 theta) - l, m.
 
     theta: crank angle (rad); r: crank radius (m); rod: rod length l (m, > r; math.inf gives
@@ -34,7 +37,8 @@ def crank_slider_position(theta, r, rod):
     return crank_slider_motion(theta, 0.0, r, rod)[0]
 
 
-def crank_slider_motion(theta, omega, r, rod):
+def crank_slider_motion(theta: npt.ArrayLike, omega: float, r: float,
+                        rod: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return (position, velocity, acceleration) of the crank-slider at a constant crank speed.
 
     theta: crank angle (rad); omega: crank angular velocity (rad/s); r, rod (= l) as in
@@ -73,7 +77,7 @@ class Scenario:
 
     frequency: float
     stator_amplitude: float
-    law: object
+    law: Any
     rod_length: float = math.inf
     frame_rate: float = 30.0
     exposure: float = 1.0 / 60.0
@@ -84,25 +88,26 @@ class Scenario:
     seed: int = 0
     description: str = field(default='', compare=False)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
+        """Reject a scenario that cannot run, with a one-line message."""
         for name in ('frequency', 'stator_amplitude', 'frame_rate', 'drift_time'):
             value = getattr(self, name)
             if not (value > 0 and math.isfinite(value)):
-                raise ValueError(f'scenario: {name} must be positive and finite, got {value!r}')
+                raise InputError(f'scenario: {name} must be positive and finite, got {value!r}')
         for name in ('noise_std', 'drift_velocity', 'settle', 'exposure'):
             value = getattr(self, name)
             if not (value >= 0 and math.isfinite(value)):
-                raise ValueError(f'scenario: {name} must be non-negative and finite, '
+                raise InputError(f'scenario: {name} must be non-negative and finite, '
                                  f'got {value!r}')
         if not self.rod_length > self.stator_amplitude:
-            raise ValueError(f'scenario: rod_length {self.rod_length!r} m must exceed the crank '
+            raise InputError(f'scenario: rod_length {self.rod_length!r} m must exceed the crank '
                              f'radius (stator_amplitude) {self.stator_amplitude!r} m')
         if self.exposure > 1.0 / self.frame_rate:
-            raise ValueError(f'scenario: exposure {self.exposure!r} s is longer than a frame '
+            raise InputError(f'scenario: exposure {self.exposure!r} s is longer than a frame '
                              f'({1.0 / self.frame_rate:.6g} s)')
 
     @property
-    def angular_frequency(self):
+    def angular_frequency(self) -> float:
         """Return the crank angular velocity 2 pi frequency, rad/s."""
         return 2.0 * math.pi * self.frequency
 
@@ -134,19 +139,19 @@ SCENARIOS = MappingProxyType({
 })
 
 
-def scenario_names():
+def scenario_names() -> list[str]:
     """Return the names of the preset scenarios."""
     return list(SCENARIOS)
 
 
-def get_scenario(name, **overrides):
+def get_scenario(name: str, **overrides: Any) -> Scenario:
     """Return the preset scenario ``name`` with fields replaced by ``overrides``."""
     if name not in SCENARIOS:
-        raise ValueError(f'unknown scenario {name!r}; known: {", ".join(SCENARIOS)}')
+        raise InputError(f'unknown scenario {name!r}; known: {", ".join(SCENARIOS)}')
     known = {f.name for f in fields(Scenario)}
     unknown = sorted(set(overrides) - known)
     if unknown:
-        raise ValueError(f'unknown scenario field(s) {", ".join(unknown)}; '
+        raise InputError(f'unknown scenario field(s) {", ".join(unknown)}; '
                          f'known: {", ".join(sorted(known))}')
     return replace(SCENARIOS[name], **overrides)
 
@@ -164,7 +169,7 @@ class BenchState:
     slider_acceleration: float
 
     @property
-    def relative_velocity(self):
+    def relative_velocity(self) -> float:
         """Return v_rel = slider velocity - stator velocity, m/s."""
         return self.slider_velocity - self.stator_velocity
 
@@ -178,9 +183,10 @@ class BenchIntegrator:
     rest: slider resting at the stator's position, law in its initial state.
     """
 
-    def __init__(self, scenario, *, dt=0.001, time=0.0, crank_angle=-math.pi / 2):
+    def __init__(self, scenario: Scenario, *, dt: float = 0.001, time: float = 0.0,
+                 crank_angle: float = -math.pi / 2):
         if not dt > 0:
-            raise ValueError(f'dt must be positive, got {dt!r}')
+            raise InputError(f'dt must be positive, got {dt!r}')
         self.scenario = scenario
         self.dt = dt
         self.time = float(time)
@@ -191,7 +197,7 @@ class BenchIntegrator:
         self._slider = np.concatenate([[float(start), 0.0], scenario.law.initial_state()])
 
     @property
-    def state(self):
+    def state(self) -> BenchState:
         """Return the current true BenchState."""
         scenario = self.scenario
         stator_x, stator_v, _ = crank_slider_motion(
@@ -204,7 +210,7 @@ class BenchIntegrator:
                           slider_position=float(slider_x), slider_velocity=float(slider_v),
                           slider_acceleration=float(acceleration))
 
-    def step_to(self, t, omega):
+    def step_to(self, t: float, omega: float) -> BenchState:
         """Advance to time t (s) with the crank turning at omega (rad/s); return the state."""
         span = t - self.time
         if span < 0:
@@ -249,7 +255,7 @@ class BenchRecord:
     frame_rate: float
     scenario: Scenario
 
-    def to_columns(self):
+    def to_columns(self) -> dict[str, np.ndarray]:
         """Return column name -> array for a position CSV: measured first, then the truth."""
         names = ('time', 'stator_position', 'slider_position', 'true_stator_position',
                  'true_slider_position', 'true_stator_velocity', 'true_slider_velocity',
@@ -257,7 +263,8 @@ class BenchRecord:
         return {name: getattr(self, name) for name in names}
 
 
-def slider_drift(rng, n_frames, period, velocity_rms, correlation_time):
+def slider_drift(rng: np.random.Generator, n_frames: int, period: float, velocity_rms: float,
+                 correlation_time: float) -> np.ndarray:
     """Return the drift (m) at n_frames frames: the integral of an Ornstein-Uhlenbeck velocity.
 
     The velocity starts in its stationary distribution and follows the exact discretisation
@@ -271,7 +278,8 @@ def slider_drift(rng, n_frames, period, velocity_rms, correlation_time):
     return np.concatenate([[0.0], np.cumsum(0.5 * (velocity[1:] + velocity[:-1]) * period)])
 
 
-def simulate(scenario, duration, *, dt=0.001, frame_rate=None):
+def simulate(scenario: Scenario, duration: float, *, dt: float = 0.001,
+             frame_rate: float | None = None) -> BenchRecord:
     """Simulate the bench for ``duration`` seconds of frames; return a BenchRecord.
 
     The rig runs scenario.settle seconds first (discarded), then is sampled at frame k,
@@ -283,11 +291,11 @@ def simulate(scenario, duration, *, dt=0.001, frame_rate=None):
     """
     frame_rate = scenario.frame_rate if frame_rate is None else frame_rate
     if not (frame_rate > 0 and scenario.exposure <= 1.0 / frame_rate):
-        raise ValueError(f'frame_rate {frame_rate!r} must be positive with frames no shorter '
+        raise InputError(f'frame_rate {frame_rate!r} must be positive with frames no shorter '
                          f'than the exposure ({scenario.exposure:g} s)')
     n_frames = math.floor(duration * frame_rate + 1e-9)
     if n_frames < 2:
-        raise ValueError(f'duration {duration!r} s holds fewer than 2 frames')
+        raise InputError(f'duration {duration!r} s holds fewer than 2 frames')
     omega = scenario.angular_frequency
     time = np.arange(n_frames) / frame_rate
     integrator = BenchIntegrator(scenario, dt=dt, time=-scenario.settle,

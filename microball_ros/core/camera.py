@@ -26,21 +26,24 @@ where column ``k`` is the centre of pixel ``k``.
 
 Default scale: 5 um per pixel, so the paper's +-1.2 mm stator stroke spans 480 of the 720
 columns and a mark moving at 0.02 m/s smears over 67 px in a 1/60 s exposure.
+
+Plate motions are given as core.motion specifications; writing the frames to a video file or
+an image folder is microball_ros.io.video's job.
 """
 
 from dataclasses import dataclass
 import math
-import os
+from typing import Any
 
-import cv2
 import numpy as np
-from scipy.interpolate import make_interp_spline
+import numpy.typing as npt
 from scipy.special import ndtr
+
+from microball_ros.core.errors import InputError
+from microball_ros.core.motion import Motion, as_motion
 
 MARK_SHAPES = ('bar', 'cross')
 PLATES = ('slider', 'stator')
-LOSSLESS_CODEC = 'FFV1'
-LOSSY_CODEC = 'MJPG'
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
 _SHAPE_PROBE_STEPS = 9
 _MIN_SUBSTEPS = 16
@@ -70,8 +73,8 @@ class CameraConfig:
     meters_per_pixel: float = 5e-6
     slider_band: tuple = (0.04, 0.40)
     stator_band: tuple = (0.60, 0.96)
-    slider_origin_px: float = None
-    stator_origin_px: float = None
+    slider_origin_px: float | None = None
+    stator_origin_px: float | None = None
     mark_shape: str = 'bar'
     mark_width: float = 100e-6
     mark_height: float = 250e-6
@@ -91,7 +94,7 @@ class CameraConfig:
     ball_diameter: float = 285e-6
     ball_pitch: float = 700e-6
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         """Reject parameters that cannot describe a camera, with a one-line message."""
         positive = ('width', 'height', 'fps', 'exposure', 'meters_per_pixel', 'mark_width',
                     'mark_height', 'mark_stroke', 'electrons_per_dn', 'max_substep_px',
@@ -99,34 +102,34 @@ class CameraConfig:
         for name in positive:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f'camera {name} must be positive and finite, got {value!r}')
+                raise InputError(f'camera {name} must be positive and finite, got {value!r}')
         for name in ('psf_sigma_px', 'read_noise_dn', 'plate_level', 'gap_level', 'vignetting',
                      'infrared_gap_level', 'ball_level'):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f'camera {name} must be >= 0 and finite, got {value!r}')
+                raise InputError(f'camera {name} must be >= 0 and finite, got {value!r}')
         if self.exposure > 1.0 / self.fps:
-            raise ValueError(f'camera exposure {self.exposure:g} s exceeds the frame period '
+            raise InputError(f'camera exposure {self.exposure:g} s exceeds the frame period '
                              f'{1.0 / self.fps:g} s')
         if not 0 <= self.mark_depth <= 1:
-            raise ValueError(f'camera mark_depth must be in [0, 1], got {self.mark_depth!r}')
+            raise InputError(f'camera mark_depth must be in [0, 1], got {self.mark_depth!r}')
         if self.mark_shape not in MARK_SHAPES:
-            raise ValueError(f'camera mark_shape must be one of {", ".join(MARK_SHAPES)}, '
+            raise InputError(f'camera mark_shape must be one of {", ".join(MARK_SHAPES)}, '
                              f'got {self.mark_shape!r}')
         for name in ('slider_band', 'stator_band'):
             top, bottom = getattr(self, name)
             if not 0 <= top < bottom <= 1:
-                raise ValueError(f'camera {name} must be (top, bottom) with 0 <= top < bottom '
+                raise InputError(f'camera {name} must be (top, bottom) with 0 <= top < bottom '
                                  f'<= 1, got {(top, bottom)!r}')
         if self.slider_band[1] > self.stator_band[0]:
-            raise ValueError('camera slider_band must lie above stator_band')
+            raise InputError('camera slider_band must lie above stator_band')
 
-    def origin_px(self, plate):
+    def origin_px(self, plate: str) -> float:
         """Return the image column of the mark centre of ``plate`` at position 0."""
         origin = getattr(self, f'{_check_plate(plate)}_origin_px')
         return (self.width - 1) / 2.0 if origin is None else float(origin)
 
-    def ball_origin_px(self):
+    def ball_origin_px(self) -> float:
         """Return the image column of a ball centre when both plates are at position 0.
 
         The balls roll without slipping, so the ball train sits at the mean of the slider and
@@ -134,28 +137,28 @@ class CameraConfig:
         """
         return (self.origin_px('slider') + self.origin_px('stator')) / 2.0
 
-    def mark_row_px(self, plate):
+    def mark_row_px(self, plate: str) -> float:
         """Return the image row of the centre of the mark on ``plate``."""
         top, bottom = getattr(self, f'{_check_plate(plate)}_band')
         return (top + bottom) / 2.0 * self.height - 0.5
 
-    def to_px(self, plate, position):
+    def to_px(self, plate: str, position: npt.ArrayLike) -> np.ndarray:
         """Convert plate position(s) in m to the image column(s) of its mark centre."""
         return self.origin_px(plate) + np.asarray(position, dtype=float) / self.meters_per_pixel
 
-    def frame_time(self, index):
+    def frame_time(self, index: npt.ArrayLike) -> np.ndarray:
         """Return the mid-exposure time (s) of frame(s) ``index``."""
         return self.start_time + np.asarray(index, dtype=float) / self.fps + self.exposure / 2.0
 
-    def noise_variance(self, expected):
+    def noise_variance(self, expected: npt.ArrayLike) -> np.ndarray:
         """Return the per-pixel noise variance (DN^2) of a frame with this expected value.
 
         Shot noise, read noise and the rounding to integers (1/12 DN^2).
         """
-        expected = np.clip(np.asarray(expected, dtype=float), 0.0, None)
-        return expected / self.electrons_per_dn + self.read_noise_dn ** 2 + 1.0 / 12.0
+        level = np.clip(np.asarray(expected, dtype=float), 0.0, None)
+        return level / self.electrons_per_dn + self.read_noise_dn ** 2 + 1.0 / 12.0
 
-    def mark_rectangles_px(self):
+    def mark_rectangles_px(self) -> tuple[tuple[float, float, float], ...]:
         """Return the mark as signed rectangles ``(half_width, half_height, sign)`` in px.
 
         The mark's indicator is the signed sum of the rectangles' indicators, all centred on the
@@ -169,7 +172,7 @@ class CameraConfig:
         return ((half_s, half_h, 1.0), (half_w, half_s, 1.0),
                 (min(half_s, half_w), min(half_s, half_h), -1.0))
 
-    def mark_half_extent_px(self):
+    def mark_half_extent_px(self) -> tuple[float, float]:
         """Return the half width and half height (px) of the mark's bounding box."""
         rects = self.mark_rectangles_px()
         return max(r[0] for r in rects), max(r[1] for r in rects)
@@ -198,7 +201,7 @@ class GroundTruth:
     time: np.ndarray
     slider: MarkTruth
     stator: MarkTruth
-    balls: MarkTruth = None
+    balls: MarkTruth | None = None
 
 
 @dataclass(frozen=True)
@@ -229,11 +232,11 @@ class RenderedVideo:
 
 def _check_plate(plate):
     if plate not in PLATES:
-        raise ValueError(f'plate must be one of {", ".join(PLATES)}, got {plate!r}')
+        raise InputError(f'plate must be one of {", ".join(PLATES)}, got {plate!r}')
     return plate
 
 
-def edge_antiderivative(u, sigma):
+def edge_antiderivative(u: npt.ArrayLike, sigma: float) -> np.ndarray:
     """Return the integral from -inf to ``u`` of the Gaussian-blurred unit step Phi(v / sigma).
 
     ``u * Phi(u / sigma) + sigma * phi(u / sigma)``; for ``sigma == 0``, ``max(u, 0)``.
@@ -245,7 +248,8 @@ def edge_antiderivative(u, sigma):
     return u * ndtr(z) + sigma * np.exp(-0.5 * z * z) / _SQRT_2PI
 
 
-def box_profile(pixels, centers, half_width, sigma):
+def box_profile(pixels: npt.ArrayLike, centers: npt.ArrayLike, half_width: float,
+                sigma: float) -> np.ndarray:
     """Return the pixel-integrated, PSF-blurred profile of a 1-D box, averaged over centres.
 
     ``pixels`` are pixel-centre coordinates (pixel ``k`` covers [k - 0.5, k + 0.5]);
@@ -262,42 +266,6 @@ def box_profile(pixels, centers, half_width, sigma):
     return np.diff(upper - lower)
 
 
-def as_motion(spec):
-    """Return a vectorised position function t (s) -> x (m) from a motion specification.
-
-    ``spec`` is a callable (used as is), a pair ``(times, positions)`` of sampled arrays
-    (interpolated by a cubic spline; asking for a time outside the samples raises ValueError),
-    or a number (a still plate).
-    """
-    if callable(spec):
-        def motion(t):
-            t = np.asarray(t, dtype=float)
-            return np.broadcast_to(np.asarray(spec(t), dtype=float), t.shape)
-        return motion
-    if isinstance(spec, (int, float, np.floating, np.integer)):
-        value = float(spec)
-        return lambda t: np.full(np.shape(t), value)
-    try:
-        times, positions = (np.asarray(a, dtype=float) for a in spec)
-    except (TypeError, ValueError):
-        raise ValueError('motion must be a callable, a number or a (times, positions) '
-                         'pair') from None
-    if times.ndim != 1 or times.shape != positions.shape or times.size < 2:
-        raise ValueError('motion samples must be two 1-D arrays of equal length >= 2')
-    if np.any(np.diff(times) <= 0):
-        raise ValueError('motion sample times must increase strictly')
-    spline = make_interp_spline(times, positions, k=min(3, times.size - 1))
-    lo, hi = times[0], times[-1]
-
-    def sampled(t):
-        t = np.asarray(t, dtype=float)
-        if t.size and (t.min() < lo - 1e-12 or t.max() > hi + 1e-12):
-            raise ValueError(f'motion samples cover t in [{lo:g}, {hi:g}] s, a frame needs '
-                             f't in [{t.min():g}, {t.max():g}] s')
-        return spline(t)
-    return sampled
-
-
 class SyntheticCamera:
     """Render frames of the two marks moving along x; seeded, pure, frame by frame.
 
@@ -305,7 +273,7 @@ class SyntheticCamera:
     rendered alone (for example by a node, on demand) and equals the same frame of a batch.
     """
 
-    def __init__(self, config=None, seed=0):
+    def __init__(self, config: CameraConfig | None = None, seed: int = 0):
         """Precompute the static scene (plate bands, illumination) for ``config``."""
         self.config = CameraConfig() if config is None else config
         self.seed = int(seed)
@@ -341,7 +309,7 @@ class SyntheticCamera:
         ball_top, ball_bottom = cfg.slider_band[1], cfg.stator_band[0]
         self._ball_row = (ball_top + ball_bottom) / 2.0 * cfg.height - 0.5
 
-    def exposure_times(self, index, stator, slider):
+    def exposure_times(self, index: int, stator: Motion, slider: Motion) -> np.ndarray:
         """Return the sub-exposure sample times (s) of frame ``index`` for these motions.
 
         Midpoints of equal sub-intervals, enough that no mark moves more than
@@ -358,7 +326,8 @@ class SyntheticCamera:
         n = max(_MIN_SUBSTEPS, int(math.ceil(path / cfg.max_substep_px)))
         return start + cfg.exposure * (np.arange(n) + 0.5) / n
 
-    def expected_frame(self, index, stator, slider):
+    def expected_frame(self, index: int, stator: Any,
+                       slider: Any) -> tuple[np.ndarray, FrameTruth]:
         """Return the noiseless frame (float, DN, before clipping) and its FrameTruth.
 
         ``stator`` and ``slider`` are motion specifications (see ``as_motion``).
@@ -368,7 +337,7 @@ class SyntheticCamera:
         times = self.exposure_times(index, stator, slider)
         t_mid = float(cfg.frame_time(index))
         scene = np.repeat(self._base_rows[:, None], cfg.width, axis=1)
-        truth = {}
+        truth: dict[str, Any] = {}
         centers = {}
         for plate, motion in (('slider', slider), ('stator', stator)):
             x = motion(times)
@@ -423,7 +392,7 @@ class SyntheticCamera:
             patch = scene[lo:hi, left:right]
             patch += cover * (cfg.ball_level - patch)
 
-    def add_noise(self, expected, index):
+    def add_noise(self, expected: np.ndarray, index: int) -> np.ndarray:
         """Return the mono8 frame for a noiseless ``expected`` frame: noise, rounding, clipping.
 
         Uses the random stream of frame ``index``. Shot noise is Poisson where fewer than
@@ -442,7 +411,8 @@ class SyntheticCamera:
             dn[low] = electrons / gain + cfg.read_noise_dn * rng.standard_normal(electrons.size)
         return np.clip(np.rint(dn), 0, 255).astype(np.uint8)
 
-    def render_frame(self, index, stator, slider, noise=True):
+    def render_frame(self, index: int, stator: Any, slider: Any,
+                     noise: bool = True) -> tuple[np.ndarray, FrameTruth]:
         """Return frame ``index`` (H x W uint8) and its FrameTruth.
 
         With ``noise=False`` the noiseless frame is only rounded and clipped.
@@ -452,7 +422,8 @@ class SyntheticCamera:
             return self.add_noise(expected, index), truth
         return np.clip(np.rint(expected), 0, 255).astype(np.uint8), truth
 
-    def suggest_roi(self, plate, span_px, margin_px=24):
+    def suggest_roi(self, plate: str, span_px: tuple[float, float],
+                    margin_px: float = 24) -> tuple[int, int, int, int]:
         """Return an ROI (x, y, w, h) containing the mark of ``plate`` for centres in ``span_px``.
 
         ``span_px`` is the (min, max) image column of the mark centre; the ROI adds the mark's
@@ -470,11 +441,13 @@ class SyntheticCamera:
         y0 = max(int(math.floor(row - half_h - pad_y)), 0)
         y1 = min(int(math.ceil(row + half_h + pad_y)) + 1, cfg.height)
         if x1 <= x0 or y1 <= y0:
-            raise ValueError(f'the {plate} mark never enters the frame')
+            raise InputError(f'the {plate} mark never enters the frame')
         return (x0, y0, x1 - x0, y1 - y0)
 
 
-def render_frames(stator_motion, slider_motion, n_frames, config=None, seed=0, noise=True):
+def render_frames(stator_motion: Any, slider_motion: Any, n_frames: int,
+                  config: CameraConfig | None = None, seed: int = 0,
+                  noise: bool = True) -> RenderedVideo:
     """Render ``n_frames`` frames of the two marks and return a RenderedVideo.
 
     ``stator_motion`` and ``slider_motion`` map time (s, array) to position (m): callables,
@@ -487,17 +460,17 @@ def render_frames(stator_motion, slider_motion, n_frames, config=None, seed=0, n
     others every ``ball_pitch``).
     """
     if int(n_frames) != n_frames or n_frames < 1:
-        raise ValueError(f'n_frames must be a positive integer, got {n_frames!r}')
+        raise InputError(f'n_frames must be a positive integer, got {n_frames!r}')
     camera = SyntheticCamera(config, seed)
     stator, slider = as_motion(stator_motion), as_motion(slider_motion)
     cfg = camera.config
     frames = np.empty((int(n_frames), cfg.height, cfg.width), dtype=np.uint8)
     rows = []
     for index in range(int(n_frames)):
-        frames[index], truth = camera.render_frame(index, stator, slider, noise=noise)
-        rows.append(truth)
-    marks = {}
-    for plate in ('slider', 'stator') + (('balls',) if cfg.infrared else ()):
+        frames[index], frame_truth = camera.render_frame(index, stator, slider, noise=noise)
+        rows.append(frame_truth)
+    marks: dict[str, MarkTruth] = {}
+    for plate in PLATES + (('balls',) if cfg.infrared else ()):
         mid = np.array([getattr(r, f'{plate}_mid') for r in rows])
         mean = np.array([getattr(r, f'{plate}_mean') for r in rows])
         if plate == 'balls':
@@ -513,89 +486,3 @@ def render_frames(stator_motion, slider_motion, n_frames, config=None, seed=0, n
     truth = GroundTruth(time=np.array([r.time for r in rows]), **marks)
     rois = {plate: camera.suggest_roi(plate, marks[plate].span_px) for plate in PLATES}
     return RenderedVideo(frames=frames, truth=truth, rois=rois, config=cfg)
-
-
-def paper_motion(stator_amplitude=1.2e-3, slider_amplitude=1.1e-3, frequency=2.95,
-                 phase_lag=0.4, slider_drift=0.0):
-    """Return (stator, slider) sinusoidal position functions in the paper's regime.
-
-    The stator follows ``A_s sin(w t)``, the slider ``A_l sin(w t - phase_lag) + drift * t``;
-    positions in m, ``slider_drift`` in m/s. A convenience for tests, benchmarks and demos.
-    """
-    omega = 2.0 * math.pi * frequency
-
-    def stator(t):
-        return stator_amplitude * np.sin(omega * np.asarray(t, dtype=float))
-
-    def slider(t):
-        t = np.asarray(t, dtype=float)
-        return slider_amplitude * np.sin(omega * t - phase_lag) + slider_drift * t
-    return stator, slider
-
-
-def write_video(path, frames, fps=30.0, codec=LOSSLESS_CODEC):
-    """Write mono8 frames to a video file with OpenCV (FFmpeg backend) and return the path.
-
-    ``codec`` is a FourCC: 'FFV1' (lossless; .mkv or .avi) or 'MJPG' (lossy, like a DV camera;
-    .avi), or any FourCC this OpenCV build writes (see ``codec_available``). The FFmpeg
-    backend ignores a quality setting, so the lossy codecs use FFmpeg's defaults. Raises
-    ValueError if the writer cannot be opened or the frames are not 2-D uint8 of one size.
-    """
-    frames = [np.asarray(f) for f in frames]
-    if not frames:
-        raise ValueError('no frames to write')
-    height, width = frames[0].shape[:2]
-    if len(codec) != 4:
-        raise ValueError(f'codec must be a 4-character FourCC, got {codec!r}')
-    for frame in frames:
-        if frame.shape != (height, width) or frame.dtype != np.uint8:
-            raise ValueError('frames must all be 2-D uint8 arrays of the same size')
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    writer = cv2.VideoWriter(os.fspath(path), cv2.VideoWriter_fourcc(*codec), float(fps),
-                             (width, height), isColor=False)
-    if not writer.isOpened():
-        raise ValueError(f'{path}: this OpenCV build cannot write {codec!r} video')
-    try:
-        for frame in frames:
-            writer.write(frame)
-    finally:
-        writer.release()
-    return path
-
-
-def write_image_sequence(directory, frames, pattern='frame_{:06d}.png'):
-    """Write frames as numbered lossless images into ``directory``; return the file paths."""
-    os.makedirs(directory, exist_ok=True)
-    paths = []
-    for index, frame in enumerate(frames):
-        path = os.path.join(directory, pattern.format(index))
-        if not cv2.imwrite(path, np.asarray(frame)):
-            raise ValueError(f'{path}: cannot write image')
-        paths.append(path)
-    return paths
-
-
-def codec_available(codec, suffix='.avi', directory=None):
-    """Return True if this OpenCV build writes and reads back ``codec`` video in ``suffix``.
-
-    Writes two tiny frames into a temporary file (in ``directory`` if given) and removes it.
-    """
-    import tempfile
-
-    with tempfile.TemporaryDirectory(dir=directory) as tmp:
-        path = os.path.join(tmp, f'probe{suffix}')
-        writer = cv2.VideoWriter(path, cv2.VideoWriter_fourcc(*codec), 30.0, (32, 24),
-                                 isColor=False)
-        if not writer.isOpened():
-            return False
-        for value in (60, 180):
-            writer.write(np.full((24, 32), value, dtype=np.uint8))
-        writer.release()
-        capture = cv2.VideoCapture(path)
-        try:
-            ok, frame = capture.read()
-        finally:
-            capture.release()
-        return bool(ok) and frame is not None and frame.shape[:2] == (24, 32)
-

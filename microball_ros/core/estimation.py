@@ -1,9 +1,10 @@
-"""Velocity and acceleration from sampled positions, and the friction memory (hysteresis) test.
+"""Velocity and acceleration from sampled positions: the three-stage algorithm, baselines.
 
 Section III of Tan, Modafe & Ghodssi (ACC 2005): finite differences, the three-stage algorithm
 (center difference, amplitude-based FFT filtering, per-component amplitude compensation), the
-baselines it is compared with, the fundamental frequency of a record and the phase test that
-decides whether friction is a static function of the relative velocity.
+baselines it is compared with (forward and center differences, low-pass + forward differences,
+Savitzky-Golay, spectral). The memory test that uses these estimates is core.memory; the
+harmonic model they share (fundamental frequency, design matrix) is core.harmonics.
 
 Conventions shared by every estimator:
 
@@ -16,11 +17,21 @@ Conventions shared by every estimator:
   delay is the phase error the paper criticises, not something to correct here.
 """
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
-from scipy import fft, optimize, signal, stats
+import numpy.typing as npt
+from scipy import fft, signal
+
+from microball_ros.core.errors import InputError
+from microball_ros.core.harmonics import (
+    check_positions,
+    fundamental_frequency,
+    harmonic_design,
+    harmonics_below_nyquist,
+)
 
 # The three-stage options of the paper, and the ones recommended here (see three_stage).
 PAPER_OPTIONS = MappingProxyType({'whole_periods': False, 'slow_band': 0.0, 'edges': 'trim',
@@ -29,10 +40,6 @@ PAPER_OPTIONS = MappingProxyType({'whole_periods': False, 'slow_band': 0.0, 'edg
 RECOMMENDED_OPTIONS = MappingProxyType({'whole_periods': True, 'slow_band': 0.5, 'edges': 'trim',
                                         'detrend': False, 'max_compensation': 10.0,
                                         'exposure': 0.0, 'noise_floor': 4.0})
-
-# Normal one-sigma quantile, used to turn a Student-t interval into a one-sigma equivalent.
-_ONE_SIGMA_QUANTILE = stats.norm.cdf(1.0)
-
 
 @dataclass(frozen=True, eq=False)
 class Estimate:
@@ -55,51 +62,12 @@ class Estimate:
     acceleration_frequencies: np.ndarray = field(default_factory=lambda: np.empty(0))
     options: dict = field(default_factory=dict)
 
-
-@dataclass(frozen=True)
-class MemoryTest:
-    """Result of the memory test: fundamental phases of slider acceleration and v_rel.
-
-    Phases (rad) are those of ``amplitude * sin(2 pi f (t - t0) + phase)`` with ``t0`` the
-    first time stamp of the analysed window; amplitudes are in m/s and m/s^2.
-    ``phase_difference`` is acceleration minus velocity phase folded into [0, pi] and
-    ``uncertainty`` its one-sigma uncertainty (rad). ``memoryless`` is
-    ``|pi - phase_difference| <= k * uncertainty + margin``. ``periods`` whole periods were
-    analysed, split into ``blocks`` blocks for the uncertainty.
-    """
-
-    phase_difference: float
-    uncertainty: float
-    memoryless: bool
-    frequency: float
-    velocity_phase: float
-    acceleration_phase: float
-    velocity_amplitude: float
-    acceleration_amplitude: float
-    periods: int
-    blocks: int
-    k: float
-    margin: float
-
-
-def _positions(x, dt, minimum):
-    """Return x as a finite 1-D float array of at least ``minimum`` samples, checking dt."""
-    x = np.asarray(x, dtype=float)
-    if x.ndim != 1 or x.size < minimum:
-        raise ValueError(f'need a 1-D array of at least {minimum} positions, got shape {x.shape}')
-    if not np.all(np.isfinite(x)):
-        raise ValueError('positions contain NaN or infinity; fill or cut the gaps first')
-    if not (np.isfinite(dt) and dt > 0):
-        raise ValueError(f'sample period must be positive, got {dt!r}')
-    return x
-
-
 def _estimate(method, dt, index, velocity, acceleration, **extra):
     return Estimate(time=index * dt, velocity=velocity, acceleration=acceleration, index=index,
                     method=method, sample_period=float(dt), **extra)
 
 
-def forward_difference(x, dt):
+def forward_difference(x: npt.ArrayLike, dt: float) -> Estimate:
     """Estimate velocity and acceleration by the paper's forward differences.
 
     ``v[n] = (x[n] - x[n-1]) / dt`` and ``a[n] = (x[n] - 2 x[n-1] + x[n-2]) / dt^2``, stamped
@@ -107,20 +75,20 @@ def forward_difference(x, dt):
     ``m1 = sin(w dt/2) / (w dt/2)`` and lags by ``w dt/2`` (eq. 7), the acceleration is scaled
     by ``m1^2`` and lags by ``w dt`` (eq. 9).
     """
-    x = _positions(x, dt, 3)
+    x = check_positions(x, dt, 3)
     velocity = np.diff(x) / dt
     acceleration = np.diff(x, 2) / dt ** 2
     return _estimate('forward', dt, np.arange(2, x.size), velocity[1:], acceleration)
 
 
-def center_difference(x, dt):
+def center_difference(x: npt.ArrayLike, dt: float) -> Estimate:
     """Estimate velocity and acceleration by center differences (eqs. 5, 6).
 
     ``v[n] = (x[n+1] - x[n-1]) / (2 dt)`` and ``a[n] = (x[n+1] - 2 x[n] + x[n-1]) / dt^2`` for
     n = 1 .. N-2. For ``X sin(w t)`` both are in phase with the truth, scaled by
     ``sin(w dt) / (w dt)`` and ``(sin(w dt/2) / (w dt/2))^2`` (eqs. 10, 11).
     """
-    x = _positions(x, dt, 3)
+    x = check_positions(x, dt, 3)
     velocity = (x[2:] - x[:-2]) / (2 * dt)
     acceleration = np.diff(x, 2) / dt ** 2
     return _estimate('center', dt, np.arange(1, x.size - 1), velocity, acceleration)
@@ -180,22 +148,6 @@ def _filter_and_compensate(crude, dt, epsilon, gain, noise_shape, options):
     return fft.irfft(spectrum * scale, n), frequencies[keep]
 
 
-def _harmonics_below_nyquist(frequency, dt):
-    """Return how many harmonics of ``frequency`` (the fundamental included) lie below Nyquist."""
-    return max(1, int(np.ceil(0.5 / (frequency * dt))) - 1)
-
-
-def _design(t, frequency, harmonics, order):
-    """Return the least-squares design: a polynomial of ``order`` in t (-1: none), then cos/sin."""
-    span = t[-1] - t[0]
-    u = 2 * (t - t[0]) / span - 1
-    columns = [u ** p for p in range(order + 1)]
-    for k in range(1, harmonics + 1):
-        angle = 2 * np.pi * k * frequency * (t - t[0])
-        columns += [np.cos(angle), np.sin(angle)]
-    return np.column_stack(columns)
-
-
 def _whole_period_length(n, cycles_per_sample):
     """Return a length <= n spanning a whole number of periods as exactly as samples allow.
 
@@ -204,7 +156,7 @@ def _whole_period_length(n, cycles_per_sample):
     """
     most = int(np.floor((n + 0.5) * cycles_per_sample))
     if most < 1:
-        raise ValueError(f'{n} samples are less than one period of the fundamental')
+        raise InputError(f'{n} samples are less than one period of the fundamental')
     periods = np.arange((most + 1) // 2, most + 1)
     lengths = np.minimum(np.round(periods / cycles_per_sample), n)
     mismatch = np.abs(lengths * cycles_per_sample - periods)
@@ -220,14 +172,17 @@ def _trend(t, x, frequency, order, dt):
     """
     drift = np.polynomial.legendre.legvander(2 * (t - t[0]) / (t[-1] - t[0]) - 1, order)
     design = np.column_stack(
-        [drift, _design(t, frequency, _harmonics_below_nyquist(frequency, dt), -1)])
+        [drift, harmonic_design(t, frequency, harmonics_below_nyquist(frequency, dt), -1)])
     coefficients = np.linalg.lstsq(design, x, rcond=None)[0]
     return np.polynomial.Legendre(coefficients[:order + 1], domain=[t[0], t[-1]])
 
 
-def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_periods=None,
-                slow_band=None, edges=None, detrend=None, max_compensation=None,
-                exposure=None, noise_floor=None, fundamental=None):
+def three_stage(x: npt.ArrayLike, dt: float, epsilon: float = 0.02, *, paper: bool = False,
+                compensate: bool = True, whole_periods: bool | None = None,
+                slow_band: float | None = None, edges: str | None = None,
+                detrend: int | bool | None = None, max_compensation: float | None = None,
+                exposure: float | None = None, noise_floor: float | bool | None = None,
+                fundamental: float | None = None) -> Estimate:
     """Estimate velocity and acceleration by the paper's three-stage algorithm (Fig. 3).
 
     1. center difference of the positions;
@@ -290,22 +245,22 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
     slow-band errors are 0.31 % / 0.70 %, and 0.05 % with epsilon = 0: what remains is
     harmonics under the threshold.
     """
-    x = _positions(x, dt, 5)
-    options = dict(PAPER_OPTIONS if paper else RECOMMENDED_OPTIONS)
+    x = check_positions(x, dt, 5)
+    options: dict[str, Any] = dict(PAPER_OPTIONS if paper else RECOMMENDED_OPTIONS)
     explicit = {'whole_periods': whole_periods, 'slow_band': slow_band, 'edges': edges,
                 'detrend': detrend, 'max_compensation': max_compensation,
                 'exposure': exposure, 'noise_floor': noise_floor}
     options.update({name: value for name, value in explicit.items() if value is not None})
     if options['edges'] not in ('trim', 'circular'):
-        raise ValueError(f"edges must be 'trim' or 'circular', got {options['edges']!r}")
+        raise InputError(f"edges must be 'trim' or 'circular', got {options['edges']!r}")
     order = options['detrend']
     integer = isinstance(order, (int, np.integer)) and not isinstance(order, bool)
     if not (order is False or integer and order >= 0):
-        raise ValueError(f'detrend must be a polynomial order >= 0 or False, got {order!r}')
+        raise InputError(f'detrend must be a polynomial order >= 0 or False, got {order!r}')
     if not epsilon >= 0:
-        raise ValueError(f'epsilon must be >= 0, got {epsilon!r}')
+        raise InputError(f'epsilon must be >= 0, got {epsilon!r}')
     if not 0 <= options['exposure'] <= dt:
-        raise ValueError(f"exposure must be in [0, {dt:g}] s (at most the sample period), got "
+        raise InputError(f"exposure must be in [0, {dt:g}] s (at most the sample period), got "
                          f"{options['exposure']!r}")
     needs_fundamental = options['whole_periods'] or options['slow_band'] or order is not False
     if fundamental is None and needs_fundamental:
@@ -316,7 +271,7 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
     # Length of the FFT'd center differences, and the positions they need.
     length = x.size if circular else x.size - 2
     if options['whole_periods']:
-        length = _whole_period_length(length, fundamental * dt)
+        length = _whole_period_length(length, options['fundamental'] * dt)
     window = x[:length] if circular else x[:length + 2]
     t = np.arange(window.size) * dt
     if order is not False:
@@ -342,7 +297,7 @@ def three_stage(x, dt, epsilon=0.02, *, paper=False, compensate=True, whole_peri
                      acceleration_frequencies=acceleration_frequencies, options=options)
 
 
-def lowpass_forward(x, dt, cutoff=6.0, order=2):
+def lowpass_forward(x: npt.ArrayLike, dt: float, cutoff: float = 6.0, order: int = 2) -> Estimate:
     """Low-pass the positions with a causal Butterworth filter, then forward-difference them.
 
     The paper's Fig. 7(b) (cutoff in Hz). The filter starts in steady state at the first
@@ -350,9 +305,9 @@ def lowpass_forward(x, dt, cutoff=6.0, order=2):
     forward-difference lag; applied to both positions, the lag cancels between a_slid and v_rel
     only up to the extra half-sample of the forward difference.
     """
-    x = _positions(x, dt, 3)
+    x = check_positions(x, dt, 3)
     if not 0 < cutoff < 0.5 / dt:
-        raise ValueError(f'cutoff must be in (0, {0.5 / dt:g}) Hz, got {cutoff!r}')
+        raise InputError(f'cutoff must be in (0, {0.5 / dt:g}) Hz, got {cutoff!r}')
     sos = signal.butter(order, cutoff, fs=1 / dt, output='sos')
     smooth, _ = signal.sosfilt(sos, x, zi=signal.sosfilt_zi(sos) * x[0])
     result = forward_difference(smooth, dt)
@@ -360,16 +315,16 @@ def lowpass_forward(x, dt, cutoff=6.0, order=2):
                      options={'cutoff': cutoff, 'order': order})
 
 
-def savitzky_golay(x, dt, window=7, polyorder=5):
+def savitzky_golay(x: npt.ArrayLike, dt: float, window: int = 7, polyorder: int = 5) -> Estimate:
     """Estimate velocity and acceleration by Savitzky-Golay differentiating filters.
 
     Local least-squares polynomials of ``polyorder`` over ``window`` samples
     (scipy.signal.savgol_filter, deriv=1 and 2): zero phase inside the record, polynomial fits
     at the edges (mode='interp'), so every sample is estimated.
     """
-    x = _positions(x, dt, window)
+    x = check_positions(x, dt, window)
     if not 2 <= polyorder < window:
-        raise ValueError(f'need 2 <= polyorder < window, got polyorder {polyorder}, '
+        raise InputError(f'need 2 <= polyorder < window, got polyorder {polyorder}, '
                          f'window {window}')
     velocity = signal.savgol_filter(x, window, polyorder, deriv=1, delta=dt)
     acceleration = signal.savgol_filter(x, window, polyorder, deriv=2, delta=dt)
@@ -377,14 +332,14 @@ def savitzky_golay(x, dt, window=7, polyorder=5):
                      options={'window': window, 'polyorder': polyorder})
 
 
-def spectral(x, dt, cutoff=None):
+def spectral(x: npt.ArrayLike, dt: float, cutoff: float | None = None) -> Estimate:
     """Differentiate in the frequency domain, keeping the components at or below ``cutoff``.
 
     Multiplies the FFT by ``i w`` and ``-w^2`` (the Nyquist bin is dropped from the velocity);
     cutoff None keeps everything. The record is treated as periodic, so it should span whole
     periods without drift: a mismatch between its ends rings over the whole record.
     """
-    x = _positions(x, dt, 3)
+    x = check_positions(x, dt, 3)
     spectrum = fft.rfft(x)
     frequencies = fft.rfftfreq(x.size, dt)
     keep = frequencies <= (np.inf if cutoff is None else cutoff)
@@ -408,14 +363,15 @@ _METHODS = MappingProxyType({
 METHODS = tuple(_METHODS)
 
 
-def estimate(x, dt, method='three-stage', **options):
+def estimate(x: npt.ArrayLike, dt: float, method: str = 'three-stage', **options: Any) -> Estimate:
     """Estimate velocity and acceleration of ``x`` by the named method (one of METHODS)."""
     if method not in _METHODS:
-        raise ValueError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
+        raise InputError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
     return _METHODS[method](x, dt, **options)
 
 
-def estimate_relative(time, stator, slider, method='three-stage', **options):
+def estimate_relative(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt.ArrayLike,
+                      method: str = 'three-stage', **options: Any) -> Estimate:
     """Estimate the relative velocity and the slider acceleration on one time base.
 
     As in the paper, the velocity is estimated from the relative position
@@ -429,14 +385,14 @@ def estimate_relative(time, stator, slider, method='three-stage', **options):
     stator = np.asarray(stator, dtype=float)
     slider = np.asarray(slider, dtype=float)
     if not time.shape == stator.shape == slider.shape:
-        raise ValueError(f'time, stator and slider differ in shape: '
+        raise InputError(f'time, stator and slider differ in shape: '
                          f'{time.shape}, {stator.shape}, {slider.shape}')
     if time.size < 3:
-        raise ValueError(f'need at least 3 samples, got {time.size}')
+        raise InputError(f'need at least 3 samples, got {time.size}')
     steps = np.diff(time)
     dt = float(np.median(steps))
     if not (dt > 0 and np.all(np.abs(steps - dt) <= 0.01 * dt)):
-        raise ValueError('time stamps must increase uniformly (within 1 % of the period)')
+        raise InputError('time stamps must increase uniformly (within 1 % of the period)')
     if method == 'three-stage' and options.get('fundamental') is None:
         options['fundamental'] = fundamental_frequency(stator, dt)
     relative = estimate(slider - stator, dt, method, **options)
@@ -448,157 +404,14 @@ def estimate_relative(time, stator, slider, method='three-stage', **options):
                     options=relative.options)
 
 
-def fundamental_frequency(x, dt):
-    """Return the fundamental frequency (Hz) of an oscillating record, e.g. the stator.
-
-    The peak of the Hann-windowed, zero-padded spectrum of the linearly detrended record
-    (at least two periods in the record), refined by parabolic interpolation of the log
-    magnitude, then by a bounded search for the frequency whose least-squares fit of a
-    harmonic series (all harmonics below Nyquist, plus a line) leaves the smallest residual.
-    Harmonics do not bias it: relative error 1e-11 on 20 s of a 2.95 Hz sine at 30 fps, up
-    to 2e-6 with crank-slider harmonics, drift and 5 um noise (2-5 Hz, 25-60 fps).
-    """
-    x = _positions(x, dt, 8)
-    n = x.size
-    padded = 8 * fft.next_fast_len(n)
-    magnitude = np.abs(fft.rfft(signal.detrend(x) * signal.windows.hann(n), padded))
-    frequencies = fft.rfftfreq(padded, dt)
-    magnitude[frequencies < 2 / (n * dt)] = 0
-    peak = int(np.argmax(magnitude[:-1]))
-    if peak == 0 or magnitude[peak] == 0:
-        raise ValueError('no oscillation found in the record')
-    left, centre, right = np.log(magnitude[peak - 1:peak + 2] + np.finfo(float).tiny)
-    offset = 0.5 * (left - right) / (left - 2 * centre + right)
-    coarse = frequencies[peak] + offset * (frequencies[1] - frequencies[0])
-
-    t = np.arange(n) * dt
-    harmonics = _harmonics_below_nyquist(coarse, dt)
-
-    def residual(frequency):
-        design = _design(t, frequency, harmonics, 1)
-        return np.sum((x - design @ np.linalg.lstsq(design, x, rcond=None)[0]) ** 2)
-
-    half_bin = 0.5 / (n * dt)
-    result = optimize.minimize_scalar(residual, bounds=(coarse - half_bin, coarse + half_bin),
-                                      method='bounded', options={'xatol': 1e-10 * coarse})
-    return float(result.x)
+# The memory test moved to core.memory (it imports this module, so these resolve lazily).
+_MOVED_TO_MEMORY = ('MemoryTest', 'memory_test', 'relative_memory_test')
 
 
-def _fundamental(t, y, frequency, harmonics):
-    """Return the fundamental of y as a complex amplitude ``A e^{i phase}`` (A sin(wt + phase)).
+def __getattr__(name: str) -> Any:
+    """Resolve a name that moved to microball_ros.core.memory (old import path, still working)."""
+    if name in _MOVED_TO_MEMORY:
+        from microball_ros.core import memory
 
-    Least squares on a line plus the harmonic series, so offsets, a slow trend and the other
-    harmonics do not leak into the fundamental even when the window is not whole periods.
-    """
-    design = _design(t, frequency, harmonics, 1)
-    coefficients = np.linalg.lstsq(design, y, rcond=None)[0]
-    cosine, sine = coefficients[2:4]
-    return sine + 1j * cosine
-
-
-def _wrap(angle):
-    """Wrap angles into (-pi, pi]."""
-    return np.pi - np.mod(np.pi - angle, 2 * np.pi)
-
-
-def _memoryless(phase_difference, uncertainty, k, margin):
-    """Return True when the phase difference is compatible with pi."""
-    return bool(abs(np.pi - phase_difference) <= k * uncertainty + margin)
-
-
-def memory_test(time, v_rel, a_slid, frequency, *, k=3.0, margin=0.1, blocks=8,
-                harmonics=None):
-    """Compare the fundamental phases of slider acceleration and relative velocity.
-
-    Static (memoryless) friction ``a_slid = -L(v_rel)`` puts them pi apart; a lag or
-    hysteresis moves the difference off pi (a 30 ms first-order lag by about 0.5 rad at
-    2.95 Hz). The fundamental at ``frequency`` (Hz) is fitted by least squares, together with
-    an offset, a linear trend and ``harmonics`` harmonics (all below Nyquist by default), over
-    the longest whole number of periods from the first sample (at least 4 periods).
-
-    Uncertainty: the window is cut into ``blocks`` blocks of whole periods (at least 2 periods
-    each); the spread of the block phase differences over sqrt(blocks), scaled by the Student
-    t quantile to a one-sigma equivalent, is the one-sigma uncertainty (batch means). It
-    includes coloured noise and slow non-stationarity, but only what is in the arrays given:
-    amplitude-filtered estimates (three-stage, spectral with a cut-off) have lost the noise
-    outside their kept bins, and the noise inside the fundamental bin stays, invisible, so
-    their uncertainty comes out near zero. Center differences have the same fundamental phase
-    (exactly so for circular three-stage) and keep the noise: pass those for an honest value.
-
-    Verdict: ``memoryless = |pi - phase_difference| <= k * uncertainty + margin``. k = 3 keeps
-    noise-made false alarms below 0.3 %. The margin (rad) covers what is not noise:
-    static odd friction of a v_rel carrying odd harmonics is not exactly in antiphase (0.008
-    rad measured for a 15 % third harmonic at |alpha v_rel| = 1.1, 0.036 rad for 20 % at 2.2,
-    0.043 rad for a simulated bearing driven into saturation, |alpha v_rel| up to 7), and the
-    estimators' own phase error on memoryless data (below 0.005 rad for three-stage and
-    center differences, with drift and harmonics, 25-60 fps, 2-5 Hz), with room for what
-    synthetic data lacks (blur, tracking bias). The default 0.1 rad calls a
-    first-order friction lag of 5.4 ms or more at 2.95 Hz memory (atan(w tau) > 0.1), and
-    also the forward difference's spurious pi - w dt/2 (0.31 rad at 2.95 Hz and 30 fps).
-    :func:`relative_memory_test` runs estimation and this test with an honest uncertainty.
-    """
-    time = np.asarray(time, dtype=float)
-    v_rel = np.asarray(v_rel, dtype=float)
-    a_slid = np.asarray(a_slid, dtype=float)
-    if not time.shape == v_rel.shape == a_slid.shape or time.ndim != 1 or time.size < 3:
-        raise ValueError('time, v_rel and a_slid must be 1-D arrays of one length (3 or more)')
-    if not (np.all(np.isfinite(v_rel)) and np.all(np.isfinite(a_slid))):
-        raise ValueError('v_rel and a_slid must be finite')
-    if not frequency > 0:
-        raise ValueError(f'frequency must be positive, got {frequency!r}')
-    dt = float(np.median(np.diff(time)))
-    t = time - time[0]
-    periods = int(np.floor((t[-1] + dt) * frequency * (1 + 1e-9)))
-    if periods < 4:
-        raise ValueError(f'the memory test needs at least 4 periods, got {periods}')
-    if harmonics is None:
-        harmonics = _harmonics_below_nyquist(frequency, dt)
-    per_block = max(2, periods // blocks)
-    count = periods // per_block
-    block = np.floor(t * frequency / per_block + 1e-9).astype(int)
-
-    def difference(selected):
-        velocity = _fundamental(t[selected], v_rel[selected], frequency, harmonics)
-        acceleration = _fundamental(t[selected], a_slid[selected], frequency, harmonics)
-        return velocity, acceleration, _wrap(np.angle(acceleration) - np.angle(velocity))
-
-    velocity, acceleration, total = difference(block < count)
-    spread = [_wrap(difference(block == j)[2] - total) for j in range(count)]
-    student = stats.t.ppf(_ONE_SIGMA_QUANTILE, count - 1)
-    uncertainty = float(np.std(spread, ddof=1) / np.sqrt(count) * student)
-    phase_difference = float(abs(total))
-    return MemoryTest(
-        phase_difference=phase_difference, uncertainty=uncertainty,
-        memoryless=_memoryless(phase_difference, uncertainty, k, margin),
-        frequency=float(frequency), velocity_phase=float(np.angle(velocity)),
-        acceleration_phase=float(np.angle(acceleration)),
-        velocity_amplitude=float(abs(velocity)), acceleration_amplitude=float(abs(acceleration)),
-        periods=count * per_block, blocks=count, k=k, margin=margin)
-
-
-def relative_memory_test(time, stator, slider, method='three-stage', *, frequency=None, k=3.0,
-                         margin=0.1, blocks=8, **options):
-    """Estimate v_rel and a_slid of a record and run the memory test with an honest uncertainty.
-
-    Returns ``(estimate, test)``: the :func:`estimate_relative` result for ``method`` and
-    ``options``, and the :func:`memory_test` of it at ``frequency`` (Hz; default the
-    stator's fundamental, also used as the three-stage ``fundamental``). The uncertainty is
-    the larger of the block spreads of these estimates and of center-difference estimates over
-    the same span, and the verdict uses it: amplitude-filtered estimates hide their noise, the
-    center differences keep it and have the same fundamental phase.
-    """
-    time = np.asarray(time, dtype=float)
-    if frequency is None:
-        frequency = fundamental_frequency(stator, float(np.median(np.diff(time))))
-    if method == 'three-stage':
-        options.setdefault('fundamental', frequency)
-    result = estimate_relative(time, stator, slider, method, **options)
-    test = memory_test(result.time, result.velocity, result.acceleration, frequency, k=k,
-                       margin=margin, blocks=blocks)
-    reference = estimate_relative(time, stator, slider, 'center')
-    span = (reference.time >= result.time[0]) & (reference.time <= result.time[-1])
-    noise = memory_test(reference.time[span], reference.velocity[span],
-                        reference.acceleration[span], frequency, blocks=blocks)
-    uncertainty = max(test.uncertainty, noise.uncertainty)
-    return result, replace(test, uncertainty=uncertainty,
-                           memoryless=_memoryless(test.phase_difference, uncertainty, k, margin))
+        return getattr(memory, name)
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

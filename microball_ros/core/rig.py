@@ -13,6 +13,8 @@ import math
 import numpy as np
 
 from microball_ros.core import bench, camera
+from microball_ros.core.errors import InputError
+from microball_ros.core.motion import as_motion
 
 
 @dataclass(frozen=True)
@@ -29,7 +31,8 @@ class RigMotion:
 REACH = 1.5
 
 
-def camera_for(scenario, config=None):
+def camera_for(scenario: bench.Scenario,
+               config: camera.CameraConfig | None = None) -> camera.CameraConfig:
     """Return a CameraConfig for the scenario: its frame rate, a scale that fits the stroke.
 
     The scale is the camera's (5 um/px by default) unless a travel of REACH stator amplitudes
@@ -42,7 +45,8 @@ def camera_for(scenario, config=None):
                    exposure=min(config.exposure, scenario.exposure, 1.0 / scenario.frame_rate))
 
 
-def suggested_rois(scenario, config=None):
+def suggested_rois(scenario: bench.Scenario, config: camera.CameraConfig | None = None
+                   ) -> dict[str, tuple[int, int, int, int]]:
     """Return {'slider': roi, 'stator': roi} (x, y, w, h px) covering REACH amplitudes."""
     config = camera_for(scenario, config)
     cam = camera.SyntheticCamera(config)
@@ -51,7 +55,7 @@ def suggested_rois(scenario, config=None):
             for plate in ('slider', 'stator')}
 
 
-def rig_motion(scenario, duration, *, dt=0.001):
+def rig_motion(scenario: bench.Scenario, duration: float, *, dt: float = 0.001) -> RigMotion:
     """Integrate the rig for duration s (after its settle time) on a dt grid."""
     omega = scenario.angular_frequency
     n = math.floor(duration / dt + 1e-9) + 1
@@ -66,7 +70,9 @@ def rig_motion(scenario, duration, *, dt=0.001):
                      slider_position=np.array([s.slider_position for s in states]) + drift)
 
 
-def render_bench(scenario, duration, config=None, seed=None):
+def render_bench(scenario: bench.Scenario, duration: float,
+                 config: camera.CameraConfig | None = None,
+                 seed: int | None = None) -> tuple[camera.RenderedVideo, RigMotion]:
     """Render duration s of the scenario; return (RenderedVideo, RigMotion).
 
     The last frame's exposure must end inside the simulated span, so the motion is simulated
@@ -75,7 +81,7 @@ def render_bench(scenario, duration, config=None, seed=None):
     config = camera_for(scenario, config)
     n_frames = math.floor(duration * config.fps + 1e-9)
     if n_frames < 1:
-        raise ValueError(f'duration {duration!r} s holds no frame at {config.fps:g} fps')
+        raise InputError(f'duration {duration!r} s holds no frame at {config.fps:g} fps')
     motion = rig_motion(scenario, n_frames / config.fps + 1.0 / config.fps)
     video = camera.render_frames((motion.time, motion.stator_position),
                                  (motion.time, motion.slider_position), n_frames, config,
@@ -106,7 +112,8 @@ class RigStepper:
     The rig starts at rest; time 0 is the first frame's exposure start.
     """
 
-    def __init__(self, scenario, config=None, seed=None, motor_lag=0.05, dt=0.001):
+    def __init__(self, scenario: bench.Scenario, config: camera.CameraConfig | None = None,
+                 seed: int | None = None, motor_lag: float = 0.05, dt: float = 0.001):
         from microball_ros.core.servo import MotorModel
 
         self.scenario = scenario
@@ -123,11 +130,11 @@ class RigStepper:
         self._samples = [self._sample()]
 
     @property
-    def time(self):
+    def time(self) -> float:
         """Return the rig's current time, s."""
         return self._integrator.time
 
-    def command(self, omega, ramp_time=0.0):
+    def command(self, omega: float, ramp_time: float = 0.0) -> None:
         """Set the crank's target angular velocity (rad/s) from now on."""
         self.motor.command(self.time, omega, ramp_time)
 
@@ -149,7 +156,7 @@ class RigStepper:
             self._drift_velocity = velocity
             self._samples.append(self._sample())
 
-    def next_frame(self):
+    def next_frame(self) -> RigFrame:
         """Advance through the next frame's exposure and return the RigFrame."""
         cfg = self.config
         start = self.index / cfg.fps
@@ -163,8 +170,8 @@ class RigStepper:
         # Keep only the samples this frame's exposure needs (plus a margin for the spline).
         samples = np.array([s for s in self._samples if s[0] >= start - 3 * self.dt])
         stator, slider = (samples[:, 0], samples[:, 1]), (samples[:, 0], samples[:, 2])
-        image, truth = self.camera.render_frame(self.index, camera.as_motion(stator),
-                                                camera.as_motion(slider))
+        image, truth = self.camera.render_frame(self.index, as_motion(stator),
+                                                as_motion(slider))
         self._samples = self._samples[-4:]
         frame = RigFrame(index=self.index, stamp=middle, image=image, truth=truth, state=state,
                          crank_angular_velocity=omega)

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from microball_ros.core import estimation
+from microball_ros.core.errors import InputError
+from microball_ros.core.harmonics import fundamental_frequency
 
 
 @dataclass(frozen=True)
@@ -43,7 +44,7 @@ class WindowSettings:
     frequency_tolerance: float = 0.02
     stamp_tolerance: float = 0.05
 
-    def check(self):
+    def check(self) -> str | None:
         """Return None if the settings are usable, else a one-line reason."""
         if not self.window_periods >= 4:
             return 'window_periods must be at least 4 (the memory test needs 4 periods)'
@@ -60,11 +61,16 @@ class WindowSettings:
         return None
 
 
-def _frequency_or_nan(stator, dt):
+def _frequency_or_none(stator, dt):
     try:
-        return estimation.fundamental_frequency(stator, dt)
+        return fundamental_frequency(stator, dt)
     except ValueError:
-        return float('nan')
+        return None
+
+
+def _frequency_or_nan(stator, dt):
+    frequency = _frequency_or_none(stator, dt)
+    return float('nan') if frequency is None else frequency
 
 
 class PositionWindower:
@@ -83,19 +89,20 @@ class PositionWindower:
     * A stator that does not oscillate (amplitude below ``min_amplitude``, m) is skipped.
     """
 
-    def __init__(self, settings=None):
+    def __init__(self, settings: WindowSettings | None = None):
         self.settings = settings or WindowSettings()
         reason = self.settings.check()
         if reason:
-            raise ValueError(reason)
-        self._rows = []  # (stamp, frame_index, stator, slider)
+            raise InputError(reason)
+        self._rows: list[tuple[float, int, float, float]] = []  # stamp, index, stator, slider
 
     @property
-    def pending(self):
+    def pending(self) -> int:
         """Return how many samples wait for a window."""
         return len(self._rows)
 
-    def push(self, stamp, frame_index, stator, slider, valid=True):
+    def push(self, stamp: float, frame_index: int, stator: float, slider: float,
+             valid: bool = True) -> list[Window | Skip]:
         """Add one sample; return the list of Window and Skip events it completes."""
         events = []
         if not (valid and np.isfinite(stator) and np.isfinite(slider)):
@@ -132,11 +139,10 @@ class PositionWindower:
         stator = data[:, 2]
         # Wait up to window_periods periods of the slowest frequency for an oscillation.
         waited = duration * settings.min_frequency >= settings.window_periods
-        try:
-            if np.ptp(stator) / 2 < settings.min_amplitude:
-                raise ValueError('no oscillation')
-            frequency = estimation.fundamental_frequency(stator, dt)
-        except ValueError:
+        frequency = None
+        if np.ptp(stator) / 2 >= settings.min_amplitude:
+            frequency = _frequency_or_none(stator, dt)
+        if frequency is None:
             return self._drop(len(rows), 'stator not oscillating') if waited else []
         needed = int(round(settings.window_periods / (frequency * dt)))
         if duration * frequency < 2 or len(rows) < needed:
@@ -152,7 +158,7 @@ class PositionWindower:
             if not change <= settings.frequency_tolerance:  # NaN too: a segment at rest
                 return self._drop(int(bounds[k]), f'frequency changed ({local[0]:.3f} -> '
                                                   f'{local[k]:.3f} Hz)')
-        frequency = estimation.fundamental_frequency(window[:, 2], dt)
+        frequency = fundamental_frequency(window[:, 2], dt)
         hop = max(1, int(round(settings.hop_periods / (frequency * dt))))
         del self._rows[:hop]
         return [Window(time=window[:, 0], stator_position=window[:, 2],

@@ -18,8 +18,9 @@ from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 from microball_ros.core.errors import InputError
-from microball_ros.core.tracking import FrameSource, Tracker, check_roi, check_scale
+from microball_ros.core.tracking import Tracker, check_roi, check_scale
 from microball_ros.io import conversions
+from microball_ros.io.video import FrameSource
 from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
 
 PARAMS = {

@@ -2,7 +2,7 @@
 
 Windows are whole numbers of stator periods (core.windowing); each gets velocity and
 acceleration by the chosen method (three-stage by default) and the memory test
-(core.estimation.relative_memory_test). Invalid samples and frame gaps are never filled in: the
+(core.memory.relative_memory_test). Invalid samples and frame gaps are never filled in: the
 stretch around them is skipped with a logged reason.
 """
 
@@ -12,7 +12,7 @@ from microball_msgs.msg import DerivativeEstimate, TrackedPositions
 from rclpy.node import Node
 from std_msgs.msg import Header
 
-from microball_ros.core import estimation
+from microball_ros.core import estimation, memory
 from microball_ros.core.windowing import PositionWindower, Skip, WindowSettings
 from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
@@ -90,12 +90,12 @@ class ThreeStageEstimator(Node):
     def _analyse(self, window, header, values):
         options = ({'epsilon': values['epsilon'], 'exposure': values['exposure']}
                    if values['method'] == 'three-stage' else {})
-        est, memory = estimation.relative_memory_test(
+        est, test = memory.relative_memory_test(
             window.time, window.stator_position, window.slider_position, values['method'],
             frequency=window.frequency, k=values['memory_k'], margin=values['memory_margin'],
             **options)
         self._publisher.publish(conversions.derivative_estimate(
-            header, window, est, memory, values['epsilon']))
+            header, window, est, test, values['epsilon']))
         self.windows_published += 1
 
     def _on_job_error(self, job, error):

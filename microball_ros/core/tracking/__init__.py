@@ -1,0 +1,74 @@
+"""Sub-pixel, blur-robust tracking of the slider and stator marks along the bearing axis (x).
+
+What a blurred frame encodes: a mark that moves during the exposure is imaged as the still mark
+convolved with the distribution of its positions during the exposure (the motion kernel). The
+centroid of a convolution is the sum of the centroids, so the centroid of the mark's intensity
+deficit is the position *averaged over the exposure*, for any motion and any mark shape, and
+that is what the tracker reports, stamped at mid-exposure. (For a sinusoid the exposure average
+is the mid-exposure value scaled by sinc(w T / 2), in phase: 0.4 % at 2.95 Hz and 1/60 s.) A
+template cut from a still frame does not match a smeared mark, and a symmetric matcher finds the
+centre of symmetry of the smeared mark, which differs from the exposure average by up to a few
+tenths of a pixel when the speed changes during the exposure (seen with the paper's motion).
+
+Per mark and frame, one module per stage (all 1-D after one pass over the ROI):
+
+1. ``profile`` (the mark model): the ROI's rows averaged with weights proportional to the
+   mark's depth in each row; the relative deficit ``d = 1 - profile / baseline``, the baseline
+   a polynomial fitted to the ROI outside the mark, which removes uneven illumination;
+2. ``search``: the strongest dip of the smoothed deficit, its extent where it exceeds a
+   fraction of its peak, plus a pad;
+3. ``mark``: the checks (signal-to-noise, the mark clear of the ROI edges, no saturation, an
+   integrated deficit consistent with recent frames) and the quality;
+4. ``subpixel``: the deficit centroid over the extent (exact for any blur), or, when the mark
+   has barely moved since the previous frame, the centre of mirror symmetry (Gauss-Newton on
+   the antisymmetric energy, band-limited interpolation); if the two disagree by more than 3
+   sigma the blur is asymmetric and the centroid is kept.
+
+A failed check gives NaN and a quality below ``min_quality``: positions are never invented, and
+each frame is searched over the whole ROI, so a mark is re-acquired as soon as it returns.
+
+Frames are arrays (N x H x W, N x H x W x 3, or any iterable of 2-D arrays); video files and
+image folders are opened by microball_ros.io.video. Positions are image columns times
+``meters_per_pixel`` (column k is the centre of pixel k); time of frame n is
+``start_time + n / fps + exposure / 2``.
+
+Entry points: ``track`` (a whole sequence -> TrackResult, ``to_columns()`` gives the position
+CSV columns), ``Tracker`` (frame by frame, for a node), ``MarkTracker`` (one mark),
+``detect_rois`` (ROIs found automatically), ``parse_roi`` / ``check_roi`` / ``check_scale``
+(input validation with one-line InputErrors).
+"""
+
+from typing import Any
+
+from microball_ros.core.tracking.config import METHODS, POLARITIES, TrackerConfig
+from microball_ros.core.tracking.image import (
+    Roi,
+    check_roi,
+    check_scale,
+    detect_rois,
+    gray_frames,
+    parse_roi,
+    to_gray,
+)
+from microball_ros.core.tracking.mark import MarkTracker
+from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
+from microball_ros.core.tracking.subpixel import symmetric_center
+from microball_ros.core.tracking.tracker import Tracker, track
+
+__all__ = ['METHODS', 'POLARITIES', 'MarkMeasurement', 'MarkTracker', 'Roi', 'TrackResult',
+           'TrackedFrame', 'Tracker', 'TrackerConfig', 'check_roi', 'check_scale',
+           'detect_rois', 'gray_frames', 'parse_roi', 'symmetric_center', 'to_gray', 'track']
+
+# Names that moved to microball_ros.io.video (file and ROS-image I/O is not core). Resolved
+# on first use only, so importing the core never loads io; import them from io.video instead.
+_MOVED_TO_IO = ('FrameSource', 'iter_frames', 'image_to_gray', 'IMAGE_ENCODINGS',
+                'IMAGE_EXTENSIONS')
+
+
+def __getattr__(name: str) -> Any:
+    """Resolve a name that moved to microball_ros.io.video (old import path, still working)."""
+    if name in _MOVED_TO_IO:
+        from microball_ros.io import video
+
+        return getattr(video, name)
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')

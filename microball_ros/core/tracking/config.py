@@ -1,0 +1,59 @@
+"""Tracker settings: the one frozen TrackerConfig every stage of the tracker reads.
+
+Owns the tuning of the mark model (polarity, baseline degree), the search (smoothing,
+threshold, pad), the checks that reject a frame (signal-to-noise, depth, saturation, area
+history) and the sub-pixel fit (method, the motion below which a mark counts as still). It
+validates itself on construction with a one-line InputError; the stages never re-check it.
+"""
+
+from dataclasses import dataclass
+
+from microball_ros.core.errors import InputError
+
+METHODS = ('auto', 'centroid', 'symmetric')
+POLARITIES = ('dark', 'bright')
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Tracker tuning; the defaults suit dark etched marks on a brighter plate.
+
+    ``method``: 'auto' (centroid, or symmetry when the mark is nearly still), 'centroid' (exact
+    for any mark shape, noisier) or 'symmetric' (marks symmetric along x, still or uniformly
+    moving only). Lengths in px; ``threshold`` is the fraction of the peak deficit that
+    delimits the mark; ``still_motion_px`` is the frame-to-frame motion below which 'auto' uses
+    symmetry (blending to the centroid at three times that).
+    """
+
+    method: str = 'auto'
+    polarity: str = 'dark'
+    baseline_degree: int = 3
+    smoothing_px: int = 5
+    threshold: float = 0.05
+    pad_px: int = 4
+    weight_rows: bool = True
+    min_snr: float = 8.0
+    snr_scale: float = 12.0
+    min_depth: float = 0.02
+    min_baseline: float = 4.0
+    saturation_level: float | None = None
+    max_saturated_fraction: float = 0.002
+    area_tolerance: float = 0.12
+    area_history: int = 9
+    still_motion_px: float = 1.0
+    min_quality: float = 0.5
+
+    def __post_init__(self) -> None:
+        """Reject inconsistent settings with a one-line message."""
+        if self.method not in METHODS:
+            raise InputError(f'tracker method must be one of {", ".join(METHODS)}, '
+                             f'got {self.method!r}')
+        if self.polarity not in POLARITIES:
+            raise InputError(f'tracker polarity must be one of {", ".join(POLARITIES)}, '
+                             f'got {self.polarity!r}')
+        if not 0 <= int(self.baseline_degree) <= 5:
+            raise InputError('tracker baseline_degree must be in 0..5')
+        if int(self.smoothing_px) < 1 or int(self.pad_px) < 0 or int(self.area_history) < 1:
+            raise InputError('tracker smoothing_px, area_history must be >= 1, pad_px >= 0')
+        if not 0 < self.threshold < 1 or not 0 <= self.min_quality <= 1:
+            raise InputError('tracker threshold must be in (0, 1), min_quality in [0, 1]')

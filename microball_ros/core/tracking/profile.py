@@ -1,0 +1,125 @@
+"""The mark model: an ROI reduced to a 1-D profile along x, and the mark as a relative deficit.
+
+Owns the model every later stage works on. The ROI's rows are averaged into a profile along
+the bearing axis (``column_profile``), or averaged with weights proportional to the mark's
+depth in each row, a matched filter across rows estimated from the frame itself
+(``row_weighted_profile``). The plain plate under the mark is a low-degree polynomial
+(``Baseline``: an envelope fit the mark's dip cannot bend, then a least-squares fit outside
+the mark), which removes uneven illumination; the mark is the relative deficit
+``1 - profile / baseline`` (dark marks) or its negative (bright ones), ``relative_deficit``.
+``deficit_noise`` estimates the per-column noise of the deficit from the plain plate.
+Background removal and polarity detection belong here.
+"""
+
+import math
+
+import cv2
+import numpy as np
+
+MAD_TO_SIGMA = 1.4826
+
+
+def column_profile(region: np.ndarray) -> np.ndarray:
+    """Return the mean of the ROI's rows (float64, one value per column)."""
+    if region.dtype == np.uint8:
+        return cv2.reduce(region, 0, cv2.REDUCE_AVG, dtype=cv2.CV_64F)[0]
+    return region.astype(np.float64).mean(axis=0)
+
+
+def default_saturation(dtype: np.dtype) -> float | None:
+    """Return the level at which a sensor of this pixel type saturates (None: unknown)."""
+    if dtype == np.uint8:
+        return 255.0
+    if dtype == np.uint16:
+        return 65535.0
+    return None
+
+
+def smooth(values: np.ndarray, width: int) -> np.ndarray:
+    """Return a moving average of ``width`` samples (same length; ``width <= 1``: as is)."""
+    if width <= 1:
+        return values
+    return np.convolve(values, np.full(width, 1.0 / width), mode='same')
+
+
+class Baseline:
+    """Polynomial model of the plain plate along an ROI of ``width`` columns.
+
+    The basis is the Vandermonde matrix of ``degree`` on [-1, 1] (highest power first), so a
+    lower degree is its last columns.
+    """
+
+    def __init__(self, width: int, degree: int):
+        """Precompute the basis and its pseudo-inverse for ``width`` columns."""
+        u = np.linspace(-1.0, 1.0, width)
+        self.basis = np.vander(u, int(degree) + 1)
+        self.pinv = np.linalg.pinv(self.basis)
+
+    def fit(self, profile: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Return the least-squares fit to the columns ``keep`` (the plain plate), everywhere.
+
+        The degree drops with few columns to fit: at most one per 12 columns kept.
+        """
+        count = int(np.count_nonzero(keep))
+        degree = min(self.basis.shape[1] - 1, max(count // 12 - 1, 0))
+        basis = self.basis[keep, -(degree + 1):]
+        coef = np.linalg.lstsq(basis, profile[keep], rcond=None)[0]
+        return self.basis[:, -(degree + 1):] @ coef
+
+    def envelope(self, profile: np.ndarray, polarity: str, iterations: int = 8) -> np.ndarray:
+        """Return a first baseline that the mark's dip cannot bend: iterative clipping.
+
+        The profile is repeatedly replaced by the larger (for dark marks) of itself and the fit,
+        so the fit climbs out of the dip onto the plain plate, however wide the blurred mark.
+        """
+        clipped = profile
+        clip = np.maximum if polarity == 'dark' else np.minimum
+        for _ in range(iterations):
+            baseline = self.basis @ (self.pinv @ clipped)
+            clipped = clip(profile, baseline)
+        return baseline
+
+
+def relative_deficit(profile: np.ndarray, baseline: np.ndarray, polarity: str) -> np.ndarray:
+    """Return the mark's relative deficit: ``1 - profile / baseline`` for dark marks."""
+    if polarity == 'dark':
+        return 1.0 - profile / baseline
+    return profile / baseline - 1.0
+
+
+def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
+                         polarity: str) -> np.ndarray | None:
+    """Return the ROI's rows averaged with weights proportional to the mark's depth in each.
+
+    The depth of a row is its mean over the mark (columns ``lo - pad`` .. ``hi + pad``)
+    against its mean over flanks on both sides; None if there are no flanks or no depth.
+    """
+    w = region.shape[1]
+    a, b = max(lo - pad, 0), min(hi + pad + 1, w)
+    flank = max(8, (b - a) // 4)
+    left, right = region[:, max(a - flank, 0):a], region[:, b:b + flank]
+    if left.shape[1] + right.shape[1] == 0 or b <= a:
+        return None
+    outside = (left.sum(axis=1, dtype=np.float64) + right.sum(axis=1, dtype=np.float64)) / (
+        left.shape[1] + right.shape[1])
+    inside = region[:, a:b].mean(axis=1, dtype=np.float64)
+    depth = outside - inside if polarity == 'dark' else inside - outside
+    depth = np.clip(smooth(depth, 3), 0.0, None)
+    total = float(depth.sum())
+    if total <= 0:
+        return None
+    return (depth / total) @ region.astype(np.float64)
+
+
+def deficit_noise(deficit: np.ndarray, keep: np.ndarray) -> float:
+    """Return the 1-sigma noise of the deficit per column, from the plain plate ``keep``.
+
+    The robust spread (MAD) of the second difference, which a smooth baseline error does not
+    reach; 1e-6 at least, and when fewer than 8 columns are available.
+    """
+    second = deficit[2:] - 2.0 * deficit[1:-1] + deficit[:-2]
+    second = second[keep[1:-1]]
+    if second.size < 8:
+        return 1e-6
+    mad = float(np.median(np.abs(second - np.median(second))))
+    return max(MAD_TO_SIGMA * mad / math.sqrt(6.0), 1e-6)

@@ -1,0 +1,89 @@
+"""What the tracker reports: one mark in one frame, one frame, and a whole sequence.
+
+Plain frozen records, no computation beyond unit conversion: MarkMeasurement (image columns,
+quality, noise, and why a sample is invalid), TrackedFrame (the marks of one frame and its
+mid-exposure stamp) and TrackResult (arrays per mark, and the position-CSV columns of
+DESIGN.md section 5). An invalid sample is NaN with a low quality, never an invented position.
+"""
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from microball_ros.core.errors import InputError
+
+
+@dataclass(frozen=True)
+class MarkMeasurement:
+    """One mark in one frame.
+
+    ``position_px``: image column of the mark centre averaged over the exposure (NaN when
+    invalid); ``quality`` in [0, 1] (valid iff >= the configured ``min_quality``);
+    ``sigma_px``: estimated 1-sigma noise of the position; ``contrast``: peak relative deficit;
+    ``extent_px``: length of the (blurred) mark; ``reason``: why the sample is invalid, or ''.
+    """
+
+    position_px: float
+    quality: float
+    sigma_px: float = float('nan')
+    contrast: float = float('nan')
+    extent_px: float = float('nan')
+    reason: str = ''
+
+    @property
+    def valid(self) -> bool:
+        """Return True if the position was measured."""
+        return not math.isnan(self.position_px)
+
+
+@dataclass(frozen=True)
+class TrackedFrame:
+    """The result of one frame: index, mid-exposure time (s), measurement per mark name."""
+
+    index: int
+    time: float
+    marks: dict[str, MarkMeasurement]
+    meters_per_pixel: float
+
+    def position(self, name: str) -> float:
+        """Return the position of mark ``name`` in m (NaN when invalid)."""
+        return self.marks[name].position_px * self.meters_per_pixel
+
+    def quality(self, name: str) -> float:
+        """Return the quality of mark ``name``."""
+        return self.marks[name].quality
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """Tracked positions of a sequence: arrays per mark name, all of the length of ``time``.
+
+    ``position`` in m, ``position_px`` in image columns, ``quality`` in [0, 1], ``sigma_px``
+    the estimated noise; invalid samples are NaN with a low quality.
+    """
+
+    time: np.ndarray
+    position: dict[str, np.ndarray]
+    position_px: dict[str, np.ndarray]
+    quality: dict[str, np.ndarray]
+    sigma_px: dict[str, np.ndarray]
+    reason: dict[str, list[str]]
+    meters_per_pixel: float
+    fps: float
+    exposure: float
+    names: tuple[str, ...] = field(default=())
+
+    def to_columns(self) -> dict[str, np.ndarray]:
+        """Return the position-CSV columns (DESIGN.md section 5) as an ordered dict.
+
+        ``time,stator_position,slider_position,slider_quality,stator_quality``; needs marks
+        named 'slider' and 'stator'; NaN marks an empty cell.
+        """
+        for name in ('slider', 'stator'):
+            if name not in self.position:
+                raise InputError(f'no mark named {name!r} was tracked')
+        return {'time': self.time, 'stator_position': self.position['stator'],
+                'slider_position': self.position['slider'],
+                'slider_quality': self.quality['slider'],
+                'stator_quality': self.quality['stator']}

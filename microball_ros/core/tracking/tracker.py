@@ -1,0 +1,130 @@
+"""Several marks through a sequence of frames: time stamps, streaming and batch tracking.
+
+Owns the frame-level API. ``Tracker`` holds one MarkTracker per named ROI, the image scale and
+the frame timing (frame n is stamped at its mid-exposure, ``start_time + n / fps +
+exposure / 2``, unless the caller gives the stamp, for example a received image's header) and
+processes one frame at a time, for a node. ``track`` runs a Tracker over a whole sequence of
+array frames and returns a TrackResult. Both check the ROIs, the scale and the rate before
+any tracking. Output depends only on the ordered frames and the parameters.
+"""
+
+from collections.abc import Callable, Iterable, Mapping
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from microball_ros.core.errors import InputError
+from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.image import Roi, check_roi, check_scale, gray_frames, to_gray
+from microball_ros.core.tracking.mark import MarkTracker
+from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
+
+
+class Tracker:
+    """Track several marks (for example 'slider' and 'stator') frame by frame.
+
+    ``rois`` maps mark names to ROIs (x, y, w, h, px); ``exposure`` (s) only sets the time
+    stamps (mid-exposure); None assumes half the frame period, like the paper's camera
+    (1/60 s at 30 fps). Output depends only on the ordered frames and the parameters.
+    """
+
+    def __init__(self, rois: Mapping[str, Any], meters_per_pixel: Any, fps: Any = 30.0,
+                 exposure: float | None = None, start_time: float = 0.0,
+                 config: TrackerConfig | None = None,
+                 frame_size: tuple[int, int] | None = None):
+        """Validate the parameters (InputError, one line) and create a MarkTracker per ROI."""
+        if not rois:
+            raise InputError('need at least one mark ROI')
+        self.meters_per_pixel = check_scale(meters_per_pixel)
+        try:
+            self.fps = float(fps)
+        except (TypeError, ValueError):
+            raise InputError(f'fps {fps!r} is not a number') from None
+        if not (math.isfinite(self.fps) and self.fps > 0):
+            raise InputError(f'fps must be positive and finite, got {fps!r}')
+        self.exposure = 0.5 / self.fps if exposure is None else float(exposure)
+        if not (0 <= self.exposure <= 1.0 / self.fps):
+            raise InputError(f'exposure must be in [0, 1/fps], got {exposure!r}')
+        self.start_time = float(start_time)
+        self.config = TrackerConfig() if config is None else config
+        self.marks = {name: MarkTracker(check_roi(roi, frame_size, name), self.config, name)
+                      for name, roi in rois.items()}
+        self.index = 0
+
+    def frame_time(self, index: int) -> float:
+        """Return the mid-exposure time (s) of frame ``index``."""
+        return self.start_time + index / self.fps + self.exposure / 2.0
+
+    def process(self, frame: npt.ArrayLike, time: float | None = None) -> TrackedFrame:
+        """Track all marks in the next frame and return a TrackedFrame.
+
+        ``time`` (s, mid-exposure) overrides the stamp computed from the frame index (for
+        example the header stamp of a received image).
+        """
+        frame = to_gray(frame)
+        result = TrackedFrame(
+            index=self.index, time=self.frame_time(self.index) if time is None else float(time),
+            marks={name: mark.measure(frame) for name, mark in self.marks.items()},
+            meters_per_pixel=self.meters_per_pixel)
+        self.index += 1
+        return result
+
+
+def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
+          meters_per_pixel: Any, fps: float | None = None, exposure: float | None = None,
+          start_time: float = 0.0, config: TrackerConfig | None = None,
+          progress: Callable[[int, int | None], Any] | None = None,
+          max_frames: int | None = None, times: npt.ArrayLike | None = None,
+          n_frames: int | None = None) -> TrackResult:
+    """Track the marks through a sequence of frames and return a TrackResult.
+
+    ``frames``: an N x H x W (x 3) array or any iterable of 2-D (or colour) arrays, all of one
+    size (io.video.track_video opens video files and image folders). ``fps``: needed unless
+    ``times`` gives it. ``times``: optional per-frame mid-exposure stamps (s) instead of
+    ``start_time + n / fps + exposure / 2``. ``progress``: optional callable(frames_done,
+    frames_total_or_None), called every 100 frames and at the end; the total is ``n_frames``
+    if given, else the sequence's length if it has one. ROIs, scale and rate are checked
+    before any tracking; InputError (one line) for anything unusable.
+    """
+    first, sequence = gray_frames(frames)
+    if n_frames is None and hasattr(frames, '__len__'):
+        n_frames = 1 if np.ndim(frames) == 2 else len(frames)  # type: ignore[arg-type]
+    check_scale(meters_per_pixel)
+    times_given = None if times is None else np.asarray(times, dtype=float).ravel()
+    if times_given is not None:
+        if fps is None and times_given.size > 1:
+            fps = 1.0 / float(np.median(np.diff(times_given)))
+    if fps is None:
+        raise InputError('the frame rate is unknown: give fps')
+    tracker = Tracker(rois, meters_per_pixel, fps, exposure, start_time, config,
+                      frame_size=(first.shape[1], first.shape[0]))
+    names = tuple(tracker.marks)
+    stamps: list[float] = []
+    rows: list[dict[str, MarkMeasurement]] = []
+    for frame in sequence:
+        if max_frames is not None and len(rows) >= max_frames:
+            break
+        stamp = None
+        if times_given is not None:
+            if len(rows) >= times_given.size:
+                raise InputError(f'{times_given.size} time stamps for more frames')
+            stamp = times_given[len(rows)]
+        result = tracker.process(frame, stamp)
+        stamps.append(result.time)
+        rows.append(result.marks)
+        if progress is not None and len(rows) % 100 == 0:
+            progress(len(rows), n_frames)
+    if progress is not None:
+        progress(len(rows), n_frames)
+    if not rows:
+        raise InputError('no frames to track')
+    px = {n: np.array([r[n].position_px for r in rows]) for n in names}
+    return TrackResult(
+        time=np.array(stamps), position={n: px[n] * tracker.meters_per_pixel for n in names},
+        position_px=px, quality={n: np.array([r[n].quality for r in rows]) for n in names},
+        sigma_px={n: np.array([r[n].sigma_px for r in rows]) for n in names},
+        reason={n: [r[n].reason for r in rows] for n in names},
+        meters_per_pixel=tracker.meters_per_pixel, fps=tracker.fps,
+        exposure=tracker.exposure, names=names)
