@@ -157,19 +157,20 @@ def cmd_track(args):
 def cmd_render(args):
     """Render the simulated rig to a video, and print the track command that reads it."""
     from microball_ros.core import bench, rig
-    from microball_ros.io import video as camera  # write_video, LOSSLESS_CODEC moved to io
+    from microball_ros.io import video
 
     scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
                                                     if args.seed is not None else {}))
     _progress(f'rendering {args.duration:g} s of scenario {args.scenario!r} ...')
-    video, _ = rig.render_bench(scenario, args.duration)
-    codec = camera.LOSSLESS_CODEC if args.lossless else 'MJPG'
-    camera.write_video(args.output, video.frames, fps=video.config.fps, codec=codec)
-    rois = {name: ','.join(str(v) for v in roi) for name, roi in video.rois.items()}
-    print(f'wrote {len(video.frames)} frames ({codec}) to {args.output}')
+    rendered, _ = rig.render_bench(scenario, args.duration)
+    codec = video.LOSSLESS_CODEC if args.lossless else video.LOSSY_CODEC
+    video.write_video(args.output, rendered.frames, fps=rendered.config.fps, codec=codec)
+    rois = {name: ','.join(str(v) for v in roi) for name, roi in rendered.rois.items()}
+    config = rendered.config
+    print(f'wrote {len(rendered.frames)} frames ({codec}) to {args.output}')
     print(f"track it with: microball track {args.output} --slider-roi {rois['slider']} "
-          f"--stator-roi {rois['stator']} --meters-per-pixel {video.config.meters_per_pixel:.6g} "
-          f'--exposure {video.config.exposure:.6g} --output positions.csv')
+          f"--stator-roi {rois['stator']} --meters-per-pixel {config.meters_per_pixel:.6g} "
+          f'--exposure {config.exposure:.6g} --output positions.csv')
     return 0
 
 
