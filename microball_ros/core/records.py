@@ -55,3 +55,39 @@ def check_time_base(time, source='record', tolerance=0.01):
     if abs(steps[worst] - period) > tolerance * period:
         raise RecordError(f'{source}: non-uniform sampling: step {steps[worst]:.6g} s after '
                           f't = {time[worst]:.6g} s, median step {period:.6g} s')
+
+
+# What a MEMS microball bearing rig can plausibly produce (for unit checks with a hint).
+MAX_TRAVEL = 0.02  # m: a bearing's stroke is millimetres; 2 cm is far beyond any
+SAMPLE_PERIOD_RANGE = (1e-5, 1.0)  # s: cameras from 1 to 100,000 frames per second
+
+
+def check_units(record, source='record'):
+    """Refuse a record whose units are evidently not seconds and metres, saying what they are.
+
+    The time step of a camera lies between 10 us and 1 s; a bearing moves millimetres. A time
+    column in milliseconds or nanoseconds, or positions in millimetres or micrometres, fail
+    these checks by orders of magnitude, and the message says which unit the numbers look
+    like.
+    """
+    steps = np.diff(record.time)
+    period = float(np.median(steps)) if steps.size else 0.0
+    low, high = SAMPLE_PERIOD_RANGE
+    if period > high:
+        unit = 'nanoseconds' if period > 1e5 else 'microseconds' if period > 1e2 \
+            else 'milliseconds'
+        raise RecordError(f'{source}: time steps of {period:.6g} look like {unit}: the time '
+                          'column must be in seconds')
+    if 0 < period < low:
+        raise RecordError(f'{source}: time steps of {period:.3g} s ({1 / period:.3g} frames '
+                          "per second) are not a camera's: the time column must be in seconds")
+    for name in ('stator_position', 'slider_position'):
+        values = getattr(record, name)
+        finite = values[np.isfinite(values)]
+        if finite.size == 0:
+            continue
+        travel = float(np.ptp(finite))
+        if travel > MAX_TRAVEL:
+            unit = 'micrometres' if travel > 20 else 'millimetres'
+            raise RecordError(f'{source}: {name} spans {travel:.4g}, which looks like {unit}: '
+                              'positions must be in metres (a bearing moves millimetres)')
