@@ -14,6 +14,7 @@ InputError with one line in the user's terms.
 """
 
 import math
+import os
 
 from microball_ros.core.errors import InputError
 from microball_ros.core.servo import ServoDriver
@@ -80,6 +81,7 @@ class DynamixelDriver(ServoDriver):
         self._port = None
         self._packets = None
         self._handling_alert = False
+        self._answered = False        # the servo answered a ping: stopping it makes sense
 
     @property
     def max_frequency(self):
@@ -100,6 +102,9 @@ class DynamixelDriver(ServoDriver):
                              '(pip install dynamixel-sdk)') from error
         if not self.port_name:
             raise InputError('driver dynamixel needs the port parameter (e.g. /dev/ttyUSB0)')
+        if not os.path.exists(self.port_name):
+            raise InputError(f'servo port {self.port_name} does not exist '
+                             '(is the servo adapter plugged in?)')
         self._sdk = dynamixel_sdk
         port = dynamixel_sdk.PortHandler(self.port_name)
         try:
@@ -113,6 +118,7 @@ class DynamixelDriver(ServoDriver):
         self._port, self._packets = port, dynamixel_sdk.PacketHandler(2.0)
         try:
             model, firmware = self._ping()
+            self._answered = True
             self.log.info(f'{self._where()}: model number {model}, firmware {firmware}')
             self._write(TORQUE_ENABLE, 1, 0)
             self._torque = False
@@ -156,7 +162,8 @@ class DynamixelDriver(ServoDriver):
             return
         self._port.is_using = False       # a transaction interrupted by a signal left it set
         try:
-            self.stop()
+            if self._answered:
+                self.stop()
         except Exception as error:
             self.log.error(f'could not stop the servo: {_first_line(error)}')
         finally:
