@@ -184,6 +184,12 @@ class DynamixelEmulator:
         self.table[address:address + size] = int(value).to_bytes(
             size, 'little', signed=address in SIGNED)
 
+    def set(self, item, value):
+        """Set a control-table item directly, as if the servo had been left that way."""
+        with self._lock:
+            self._set(item, value)
+            self._follow()
+
     def get(self, item):
         """Return a control-table item, e.g. ``get(GOAL_VELOCITY)``."""
         address, size = item
