@@ -153,18 +153,23 @@ class ServoCommander(Node):
                 self._driver.stop()
         elif msg.frequency != self._ramp.goal or self._driven is None:
             self._ramp = self._ramp.to(self._now(), msg.frequency, msg.ramp_time)
+            self._ramp_timer.reset()
             self._drive()               # the ramp timer takes the later steps
         self._publisher.publish(msg)
 
     def _drive(self):
         """Give the driver the ramped frequency when it changed (ramp timer and _send)."""
         if not self._enabled or self._driver.fault is not None:
+            self._ramp_timer.cancel()
             return
-        frequency = self._ramp.value(self._now())
+        now = self._now()
+        frequency = self._ramp.value(now)
         if frequency != self._driven:
             self._driven = frequency
             self._driver.drive(frequency)
             self._check_fault()
+        if self._ramp.done(now):
+            self._ramp_timer.cancel()       # no wake-ups while the speed holds
 
     def _check_fault(self):
         """After a motor fault (the driver stopped the motor): disable and say so."""
@@ -242,7 +247,16 @@ class ServoCommander(Node):
 
 def main(args=None):
     """Run the node (console script servo_commander)."""
-    return run(ServoCommander, args)
+    try:
+        return run(ServoCommander, args)
+    except RuntimeError as error:
+        # rclpy's shutdown race (ros2/rclpy#398): a SIGINT or SIGTERM that invalidates the
+        # context while the executor builds its wait set surfaces as an RCLError (a
+        # RuntimeError) instead of ExternalShutdownException. run() has already stopped the
+        # motor (destroy_node) and shut down.
+        if 'context' in str(error) and 'not valid' in str(error):
+            return 0
+        raise
 
 
 if __name__ == '__main__':
