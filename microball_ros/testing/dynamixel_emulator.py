@@ -12,12 +12,13 @@ LEN counts the instruction (and error) byte, the parameters and the CRC, after b
 no reflection) covers everything from the header to the last parameter, stuffing included.
 The error byte's bit 7 is the hardware alert, bits 0-6 an error number.
 
-The emulator answers PING, READ and WRITE for one ID, keeps an X-series control table
-(defaults of an XM430-W350), refuses EEPROM writes (address < 64, e.g. Operating Mode) while
-torque is on with an Access Error, refuses a Goal Velocity beyond the Velocity Limit with a
-Data Limit Error, and lets Present Velocity follow Goal Velocity while torque is on. Every
-write is recorded in order with a monotonic timestamp. ``inject_hardware_error`` sets Hardware
-Error Status, turns torque off and raises the alert bit in every later status packet, as the
+The emulator answers PING, READ and WRITE for one ID and keeps an X-series control table
+(model number of an XM430-W350, Velocity Limit as given). Like the real servo it refuses
+EEPROM writes (address < 64, e.g. Operating Mode) while torque is on with an Access Error,
+refuses a Goal Velocity beyond the Velocity Limit with a Data Limit Error, and lets Present
+Velocity follow Goal Velocity while torque is on. Every write is recorded in order with a
+monotonic timestamp. ``inject_hardware_error`` sets Hardware Error Status, turns torque off
+and raises the alert bit in every later status packet, as the
 real servo does; ``silent`` makes it ignore every packet.
 
     with DynamixelEmulator() as servo:
