@@ -32,6 +32,62 @@ class Sweep:
         return self.dwell * len(self.frequencies)
 
 
+class ServoDriver:
+    """The hardware seam of servo_commander: one motor turning the crank.
+
+    A driver is built from the node's parameter values and a logger (``driver(values, log)``)
+    and registered in servo_commander's ``DRIVERS``. The node calls ``open`` once, ``drive``
+    whenever the (ramped) crank frequency changes, ``stop`` on ~/stop, ``crank_velocity`` at
+    the heartbeat rate and ``close`` on shutdown. A problem the user can fix (no port, no
+    answer) raises ``InputError``; a fault the motor reports sets ``fault`` after the driver
+    stopped the motor.
+    """
+
+    fault = None              # None, or a one-line reason once the motor stopped on a fault
+    max_frequency = None      # the highest crank frequency the motor can be asked for, Hz
+
+    def open(self):
+        """Connect to the motor and prepare it (torque stays off until ``drive``)."""
+
+    def drive(self, frequency):
+        """Turn the crank at frequency (Hz), enabling the motor first if needed."""
+
+    def stop(self):
+        """Stop the motor and release its torque."""
+
+    def crank_velocity(self):
+        """Return the measured crank angular velocity (rad/s), or None if not measured."""
+        return None
+
+    def close(self):
+        """Stop the motor (best effort) and release the hardware; never raises."""
+
+
+@dataclass(frozen=True)
+class Ramp:
+    """A linear ramp from ``origin`` at ``start`` to ``goal`` ``duration`` seconds later."""
+
+    start: float = 0.0
+    origin: float = 0.0
+    goal: float = 0.0
+    duration: float = 0.0
+
+    def value(self, time):
+        """Return the ramp's value at time (origin before start, goal after the end)."""
+        if self.duration <= 0 or time >= self.start + self.duration:
+            return self.goal
+        fraction = max(0.0, (time - self.start) / self.duration)
+        return self.origin + fraction * (self.goal - self.origin)
+
+    def done(self, time):
+        """Return True once the ramp has reached its goal."""
+        return self.duration <= 0 or time >= self.start + self.duration
+
+    def to(self, time, goal, duration):
+        """Return a new ramp from this one's value at time to goal over duration seconds."""
+        return Ramp(float(time), self.value(time), float(goal), max(0.0, float(duration)))
+
+
 class MotorModel:
     """Crank speed of a servo following its commands: a linear ramp, then a first-order lag.
 
@@ -46,24 +102,15 @@ class MotorModel:
             raise ValueError(f'motor lag must be >= 0, got {lag!r}')
         self.lag = lag
         self.omega = 0.0
-        self._ramp_from = 0.0
-        self._ramp_to = 0.0
-        self._ramp_start = 0.0
-        self._ramp_time = 0.0
+        self._ramp = Ramp()
 
     def command(self, time, omega, ramp_time):
         """Ask for angular velocity omega (rad/s) from time on, ramping over ramp_time s."""
-        self._ramp_from = self.target(time)
-        self._ramp_to = float(omega)
-        self._ramp_start = float(time)
-        self._ramp_time = max(0.0, float(ramp_time))
+        self._ramp = self._ramp.to(time, omega, ramp_time)
 
     def target(self, time):
         """Return the ramped target angular velocity at time, rad/s."""
-        if self._ramp_time == 0 or time >= self._ramp_start + self._ramp_time:
-            return self._ramp_to
-        fraction = max(0.0, (time - self._ramp_start) / self._ramp_time)
-        return self._ramp_from + fraction * (self._ramp_to - self._ramp_from)
+        return self._ramp.value(time)
 
     def advance(self, time, step):
         """Advance the shaft speed over [time, time + step] and return it, rad/s."""
