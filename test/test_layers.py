@@ -22,8 +22,9 @@ CORE_MODULES = sorted(f'microball_ros.core.{m.name}'
 ROS_PACKAGES = ('rclpy', 'microball_msgs', 'std_msgs', 'sensor_msgs', 'rosgraph_msgs',
                 'builtin_interfaces', 'diagnostic_msgs', 'rcl_interfaces', 'std_srvs')
 # Lower rank = lower layer; a module may import from its own rank or below.
-LAYERS = {'core': 0, 'io': 1, 'nodes': 2, 'app': 3, 'cli': 4, '__main__': 4, '__init__': 0,
-          'config': 0}
+# testing/ is the kit for users' node tests: it may use every layer, nothing uses it.
+LAYERS = {'core': 0, 'io': 1, 'nodes': 2, 'app': 3, 'testing': 4, 'cli': 4, '__main__': 4,
+          '__init__': 0, 'config': 0}
 
 
 def _sources():
@@ -107,4 +108,4 @@ def test_the_package_root_holds_only_the_entry_points():
     assert set(loose) <= {'__init__.py', '__main__.py', 'cli.py'}, loose
     folders = sorted(p.name for p in PACKAGE_DIR.iterdir()
                      if p.is_dir() and p.name != '__pycache__')
-    assert folders == ['app', 'config', 'core', 'io', 'nodes']
+    assert folders == ['app', 'config', 'core', 'io', 'nodes', 'testing']

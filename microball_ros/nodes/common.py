@@ -98,6 +98,12 @@ def run(node_class, args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError as error:
+        # rclpy's shutdown race (ros2/rclpy#398): a SIGINT or SIGTERM that invalidates the
+        # context while the executor builds its wait set surfaces as an RCLError (a
+        # RuntimeError) instead of ExternalShutdownException: an orderly stop all the same.
+        if 'context' not in str(error) or 'not valid' not in str(error):
+            raise
     except (MicroballError, ParameterException) as error:
         print(f'{node_class.__name__}: error: {error}', file=sys.stderr)
         return 2

@@ -247,16 +247,7 @@ class ServoCommander(Node):
 
 def main(args=None):
     """Run the node (console script servo_commander)."""
-    try:
-        return run(ServoCommander, args)
-    except RuntimeError as error:
-        # rclpy's shutdown race (ros2/rclpy#398): a SIGINT or SIGTERM that invalidates the
-        # context while the executor builds its wait set surfaces as an RCLError (a
-        # RuntimeError) instead of ExternalShutdownException. run() has already stopped the
-        # motor (destroy_node) and shut down.
-        if 'context' in str(error) and 'not valid' in str(error):
-            return 0
-        raise
+    return run(ServoCommander, args)
 
 
 if __name__ == '__main__':
