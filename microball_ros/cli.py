@@ -445,12 +445,14 @@ def build_parser():
                'is named)\n'
                '  differs: ...       the first difference: topic, message (from 0), field, '
                'both values\n'
+               '  not compared: ...  the bag has none of those topics (e.g. only frames)\n'
                'Relative difference: |a-b| / max(|a|, |b|, 1e-3 x the largest magnitude of '
                'the field in\nthe topic); NaN equals NaN. Unless byte-identical, the lines '
                'before name the fields of\nthe platform fingerprints (recorded, current) '
                'that differ.\n'
-               f'Exit status: 0 byte-identical or within tolerance, {EXIT_DIFFERS} differs, '
-               f'{EXIT_BAD_INPUT} an unusable bag,\n1 a node crashed or a bug.')
+               f'Exit status: 0 byte-identical, within tolerance or not compared, '
+               f'{EXIT_DIFFERS} differs,\n'
+               f'{EXIT_BAD_INPUT} an unusable bag, 1 a node crashed or a bug.')
     again.add_argument('bag', help='bag directory or .mcap file')
     again.add_argument('--output', required=True, help='bag directory to create')
     _frame_tracking_arguments(again)

@@ -30,7 +30,7 @@ from microball_ros.app.play import Player, use_lockstep_profile
 from microball_ros.core.windowing import PositionWindower, Window, WindowSettings
 from microball_ros.io import fingerprint
 from microball_ros.io.bags.reader import IMAGES_TOPIC, BagError, open_bag, recorded_parameters
-from microball_ros.io.compare import BYTE_IDENTICAL, compare_bags
+from microball_ros.io.compare import BYTE_IDENTICAL, NOT_COMPARED, compare_bags
 from microball_ros.io.frames import TRACKER, tracked_frames, tracker_parameters
 from microball_ros.nodes.recorder import Recorder
 from microball_ros.nodes.three_stage_estimator import PARAMS as ESTIMATOR_PARAMS
@@ -212,7 +212,7 @@ class Check(NamedTuple):
                     f'{name(self.platform)}']
         lines = [f'platform: recorded on {name(recorded)}',
                  f'platform: reprocessed on {name(self.platform)}']
-        if self.verdict.status != BYTE_IDENTICAL:
+        if self.verdict.status not in (BYTE_IDENTICAL, NOT_COMPARED):
             lines += [f'platform differs: {line}'
                       for line in fingerprint.differences(recorded, self.platform)]
             if self.same_platform:
@@ -227,9 +227,18 @@ def reproduced_topics(bag):
 
 
 def check(bag_path, output):
-    """Compare the reprocessed bag output with the recorded bag_path; return a Check."""
+    """Compare the reprocessed bag output with the recorded bag_path; return a Check.
+
+    Only the reproduced topics the recorded bag has are compared (a bag of only frames has
+    none: the verdict is then 'not compared').
+    """
     recorded, new = open_bag(bag_path), open_bag(output)
-    topics = tuple(reproduced_topics(recorded))
+    reproduced = reproduced_topics(recorded)
+    topics = tuple(t for t in reproduced if t in recorded.topics)
+    verdict = compare_bags(recorded, new, topics)
+    if not topics:
+        verdict = verdict._replace(line=f'{NOT_COMPARED}: {bag_path} has no recorded '
+                                        f'{", ".join(reproduced)}')
     custom_data = (recorded.metadata or {}).get('custom_data')
-    return Check(compare_bags(recorded, new, topics), topics,
-                 fingerprint.from_custom_data(custom_data), fingerprint.fingerprint())
+    return Check(verdict, topics, fingerprint.from_custom_data(custom_data),
+                 fingerprint.fingerprint())

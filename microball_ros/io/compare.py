@@ -9,6 +9,9 @@ Three verdicts, in this order of strength:
   array length and every message count is identical. Contract (b), another platform.
 - ``differs``: anything else; the verdict names the first difference.
 
+(``not compared``: no topic to compare, e.g. a bag of only camera frames has no recorded
+outputs.)
+
 Relative difference of two numbers a (recorded) and b (new)::
 
     |a - b| / max(|a|, |b|, FLOOR * scale)
@@ -44,6 +47,7 @@ FLOOR = 1e-3
 BYTE_IDENTICAL = 'byte-identical'
 WITHIN_TOLERANCE = 'within tolerance'
 DIFFERS = 'differs'
+NOT_COMPARED = 'not compared'
 
 
 class Difference(NamedTuple):
@@ -333,6 +337,8 @@ def compare_bags(recorded, new, topics, tolerance=TOLERANCE):
     def data(bag, topic):
         return [m.data for m in bag.messages([topic])] if topic in bag.topics else []
 
+    if not topics:
+        return Verdict(NOT_COMPARED, f'{NOT_COMPARED}: no recorded topic to compare with')
     if all(data(recorded, t) == data(new, t) for t in topics):
         counts = [TopicComparison(t, len(data(recorded, t)), len(data(new, t)), None, None)
                   for t in topics]
