@@ -340,7 +340,7 @@ def test_reprocess_names_the_first_difference_and_the_platforms_and_exits_3(tmp_
     bag = open_bag(SAMPLE)
     from microball_msgs.msg import FrictionModel
 
-    other = dict(fingerprint.fingerprint(), cpu='Other CPU', numpy_simd='X86_V2 X86_V3')
+    other = dict(fingerprint.fingerprint(), cpu='Other CPU', numpy_simd='X86_V1 MADE_UP')
     other['key'] = fingerprint.numeric_key(other)
     tampered, models = str(tmp_path / 'tampered'), 0
     with BagWriter(tampered) as writer:
@@ -364,5 +364,5 @@ def test_reprocess_names_the_first_difference_and_the_platforms_and_exits_3(tmp_
     assert verdict.endswith(' (relative difference 1e-06)')
     new_a = float(verdict.split(', new ')[1].split()[0])
     assert new_a == pytest.approx(recorded_a, rel=1e-9)
-    assert 'platform differs: numpy_simd: X86_V2 X86_V3 -> ' in result.stdout
+    assert 'platform differs: numpy_simd: X86_V1 MADE_UP -> ' in result.stdout
     assert 'platform differs: cpu: Other CPU -> ' in result.stdout
