@@ -18,6 +18,7 @@ import yaml
 
 from microball_ros.app.experiment import run_experiment
 from microball_ros.app.play import Player
+from microball_ros.app.reprocess import check
 from microball_ros.cli import main
 from microball_ros.io import conversions, fingerprint
 from microball_ros.io.bags.reader import open_bag, reindex
@@ -154,30 +155,30 @@ def test_analyzing_the_bag_equals_analyzing_its_positions_as_csv(recorded_run, t
         assert results[0][key] == results[1][key]
 
 
-def _frames_only(bag_dir, out, keep_parameters=True):
-    """Copy a bag's /camera/image_raw (and its recorded parameters) into a new bag."""
+def _frames_only(bag_dir, out, keep_parameters=True, keep=()):
+    """Copy a bag's /camera/image_raw (and its recorded parameters, and topics keep)."""
     bag = open_bag(bag_dir)
-    topic = '/camera/image_raw'
+    topics = ('/camera/image_raw', *keep)
     with BagWriter(out) as cut:
         if keep_parameters:
             cut.custom_data.update(bag.metadata['custom_data'])
-        cut.add_topic(topic, bag.topics[topic].type, bag.topics[topic].qos_profiles_yaml)
-        for message in bag.messages([topic]):
-            cut.write(topic, message.data, message.log_time_ns, message.publish_time_ns)
+        for topic in topics:
+            cut.add_topic(topic, bag.topics[topic].type, bag.topics[topic].qos_profiles_yaml)
+        for message in bag.messages(topics):
+            cut.write(message.topic, message.data, message.log_time_ns, message.publish_time_ns)
     return out
 
 
 def test_a_bag_of_frames_reprocesses_to_the_recorded_positions_and_outputs(recorded_run,
                                                                             tmp_path):
     bag_dir, _ = recorded_run
-    frames = _frames_only(bag_dir, str(tmp_path / 'frames'))
+    # Frames and the recorded outputs, not the positions: reprocess tracks, then compares.
+    frames = _frames_only(bag_dir, str(tmp_path / 'frames'), keep=OUTPUTS)
     out = str(tmp_path / 'again')
     result, verdict = _reprocess(frames, out)
     assert result.returncode == 0, result.stderr[-2000:]
     assert 'has only camera frames' in result.stderr
-    # The frames-only bag has no recorded outputs to compare with (checked below).
-    assert verdict == (f'not compared: {frames} has no recorded /tracking/positions, '
-                       '/estimation/derivatives, /friction/model')
+    assert verdict == 'byte-identical', result.stdout
     recorded, again = open_bag(bag_dir), open_bag(out)
     # A fresh camera_tracker given the recorded frames and parameters publishes the recorded
     # positions, and the estimator and identifier then their recorded outputs, to the byte.
@@ -185,6 +186,12 @@ def test_a_bag_of_frames_reprocesses_to_the_recorded_positions_and_outputs(recor
         old = [m.data for m in recorded.messages([topic])]
         assert [m.data for m in again.messages([topic])] == old, topic
         assert old
+    # A bag of only frames has nothing recorded to compare the reprocessed topics with.
+    nothing = check(_frames_only(bag_dir, str(tmp_path / 'only')), out)
+    assert nothing.topics == () and nothing.verdict.ok
+    assert nothing.verdict.line == (f"not compared: {tmp_path / 'only'} has no recorded "
+                                    '/tracking/positions, /estimation/derivatives, '
+                                    '/friction/model')
 
 
 def test_a_bag_of_frames_analyses_like_its_recorded_positions(recorded_run, tmp_path):
