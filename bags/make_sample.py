@@ -4,14 +4,19 @@
     .venv/bin/python bags/make_sample.py /tmp/run bags/paper_sample
     .venv/bin/microball analyze bags/paper_sample --json bags/paper_sample.expected.json
 
-Messages are copied byte for byte with their times and QoS, and the recorded node parameters
-(metadata custom_data) come along, so `microball reprocess` works on the sample too.
+Messages are copied byte for byte with their times and QoS, and the metadata custom_data comes
+along: the recorded node parameters, so `microball reprocess` works on the sample too, and the
+recording platform's fingerprint ('microball.platform'), so reprocess and the tests know where
+the sample must reproduce byte for byte and where only within tolerance (DESIGN.md section 4).
+Re-record on the machine the tests run on most (CI) to get byte identity there.
 """
 
 import argparse
+import sys
 
 from microball_ros.io.bags.reader import open_bag
 from microball_ros.io.bags.writer import BagWriter
+from microball_ros.io.fingerprint import CUSTOM_DATA_KEY, from_custom_data
 
 FRAME_TOPICS = ('/camera/image_raw', '/tracking/debug_image')
 
@@ -38,6 +43,13 @@ def main():
                          message.publish_time_ns)
     for line in open_bag(args.output).info_lines():
         print(line)
+    platform = from_custom_data(open_bag(args.output).metadata.get('custom_data'))
+    if platform is None:
+        print(f'warning: {args.source} carries no platform fingerprint ({CUSTOM_DATA_KEY}); '
+              'the sample can then only be checked within tolerance', file=sys.stderr)
+    else:
+        print(f"platform: {platform.get('key')} ({platform.get('cpu')}, numpy SIMD "
+              f"{platform.get('numpy_simd')})")
 
 
 if __name__ == '__main__':

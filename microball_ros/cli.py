@@ -13,6 +13,7 @@ import sys
 from microball_ros.core.errors import InputError, MicroballError
 
 EXIT_BAD_INPUT = 2
+EXIT_DIFFERS = 3  # microball reprocess: the outputs differ from the recorded ones
 EXIT_INTERRUPTED = 130
 
 # FFmpeg inside OpenCV prints its own parser complaints about a broken video; our one-line
@@ -326,9 +327,9 @@ def cmd_play(args):
 
 
 def cmd_reprocess(args):
-    """Replay a bag's positions through fresh estimator and identifier nodes; record them."""
+    """Replay a bag through fresh nodes, record their outputs, compare them with the bag's."""
     from microball_ros.app.experiment import NodeCrashed
-    from microball_ros.app.reprocess import reprocess
+    from microball_ros.app.reprocess import check, reprocess
 
     try:
         counts = reprocess(args.bag, args.output, progress=_progress,
@@ -339,7 +340,12 @@ def cmd_reprocess(args):
     for topic in sorted(counts):
         print(f'{topic}: {counts[topic]} messages')
     print(f'wrote {args.output}')
-    return 0
+    _progress('comparing the outputs with the recorded ones ...')
+    result = check(args.bag, args.output)
+    for line in result.platform_lines():
+        print(line)
+    print(result.verdict.line)
+    return 0 if result.verdict.ok else EXIT_DIFFERS
 
 
 def cmd_info(args):
@@ -425,11 +431,31 @@ def build_parser():
     play.set_defaults(func=cmd_play)
 
     again = commands.add_parser(
-        'reprocess', help='replay a bag through fresh estimator and identifier nodes',
+        'reprocess', help='replay a bag through fresh nodes and compare with its outputs',
+        formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Replay the bag's /tracking/positions (or, if it has only camera frames, "
                     'its /camera/image_raw through a fresh camera_tracker) lock-step through '
-                    'fresh three_stage_estimator and friction_identifier processes and record '
-                    'their outputs (byte for byte the recorded ones).')
+                    'fresh three_stage_estimator and friction_identifier processes, record '
+                    'their outputs, and compare them with the recorded ones.',
+        epilog='The last line printed is the verdict on /estimation/derivatives and '
+               '/friction/model\n(and /tracking/positions when frames were tracked):\n'
+               '  byte-identical     every message has the recorded bytes (same platform)\n'
+               '  within tolerance   decoded field by field, every number within relative '
+               '1e-9 of the\n'
+               '                     recorded one, every boolean, string, integer and '
+               'message count\n'
+               '                     identical (another platform; the largest difference '
+               'is named)\n'
+               '  differs: ...       the first difference: topic, message (from 0), field, '
+               'both values\n'
+               '  not compared: ...  the bag has none of those topics (e.g. only frames)\n'
+               'Relative difference: |a-b| / max(|a|, |b|, 1e-3 x the largest magnitude of '
+               'the field in\nthe topic); NaN equals NaN. Unless byte-identical, the lines '
+               'before name the fields of\nthe platform fingerprints (recorded, current) '
+               'that differ.\n'
+               f'Exit status: 0 byte-identical, within tolerance or not compared, '
+               f'{EXIT_DIFFERS} differs,\n'
+               f'{EXIT_BAD_INPUT} an unusable bag, 1 a node crashed or a bug.')
     again.add_argument('bag', help='bag directory or .mcap file')
     again.add_argument('--output', required=True, help='bag directory to create')
     _frame_tracking_arguments(again)

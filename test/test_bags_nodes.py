@@ -12,16 +12,18 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from ros_testing import Harness
 import yaml
 
 from microball_ros.app.experiment import run_experiment
 from microball_ros.app.play import Player
+from microball_ros.app.reprocess import check
 from microball_ros.cli import main
-from microball_ros.io import conversions
+from microball_ros.io import conversions, fingerprint
 from microball_ros.io.bags.reader import open_bag, reindex
 from microball_ros.io.bags.writer import BagWriter
+from microball_ros.io.compare import compare_messages, decode
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.recorder import Recorder
 
@@ -97,22 +99,39 @@ def test_experiment_output_records_every_topic_of_the_run(recorded_run):
     assert counts['/servo/command'] >= 1
 
 
+OUTPUTS = ('/estimation/derivatives', '/friction/model')
+
+
+def _reprocess(bag_dir, out):
+    """Run `microball reprocess` as a user does; return (completed process, verdict line).
+
+    A fresh process: Fast DDS reads its profile file once per process.
+    """
+    result = subprocess.run([sys.executable, '-m', 'microball_ros.cli', 'reprocess', bag_dir,
+                             '--output', out], capture_output=True, text=True, timeout=240)
+    lines = result.stdout.strip().splitlines()
+    return result, lines[-1] if lines else ''
+
+
 def test_reprocessing_reproduces_the_recorded_outputs_byte_for_byte(recorded_run, tmp_path):
+    # The run was recorded live (1.5x speed); reprocessing is lock-step, at whatever rate the
+    # nodes keep up with: the outputs are the same bytes at any playback rate, every time.
     bag_dir, _ = recorded_run
-    outputs = ('/estimation/derivatives', '/friction/model')
     recorded = open_bag(bag_dir)
+    outputs = {}
     for attempt in ('first', 'second'):
         out = str(tmp_path / attempt)
-        # As a user runs it: a fresh process (Fast DDS reads its profile file once per process).
-        result = subprocess.run([sys.executable, '-m', 'microball_ros.cli', 'reprocess',
-                                 bag_dir, '--output', out], capture_output=True, text=True,
-                                timeout=240)
+        result, verdict = _reprocess(bag_dir, out)
         assert result.returncode == 0, result.stderr[-2000:]
+        assert verdict == 'byte-identical', result.stdout
         again = open_bag(out)
-        for topic in outputs:
+        for topic in OUTPUTS:
             old = [m.data for m in recorded.messages([topic])]
             new = [m.data for m in again.messages([topic])]
             assert new == old, topic
+            outputs.setdefault(topic, []).append(new)
+    for topic, (first, second) in outputs.items():
+        assert first == second and len(first) == recorded.topics[topic].count >= 2, topic
 
 
 def test_analyzing_the_bag_equals_analyzing_its_positions_as_csv(recorded_run, tmp_path):
@@ -136,28 +155,30 @@ def test_analyzing_the_bag_equals_analyzing_its_positions_as_csv(recorded_run, t
         assert results[0][key] == results[1][key]
 
 
-def _frames_only(bag_dir, out, keep_parameters=True):
-    """Copy a bag's /camera/image_raw (and its recorded parameters) into a new bag."""
+def _frames_only(bag_dir, out, keep_parameters=True, keep=()):
+    """Copy a bag's /camera/image_raw (and its recorded parameters, and topics keep)."""
     bag = open_bag(bag_dir)
-    topic = '/camera/image_raw'
+    topics = ('/camera/image_raw', *keep)
     with BagWriter(out) as cut:
         if keep_parameters:
             cut.custom_data.update(bag.metadata['custom_data'])
-        cut.add_topic(topic, bag.topics[topic].type, bag.topics[topic].qos_profiles_yaml)
-        for message in bag.messages([topic]):
-            cut.write(topic, message.data, message.log_time_ns, message.publish_time_ns)
+        for topic in topics:
+            cut.add_topic(topic, bag.topics[topic].type, bag.topics[topic].qos_profiles_yaml)
+        for message in bag.messages(topics):
+            cut.write(message.topic, message.data, message.log_time_ns, message.publish_time_ns)
     return out
 
 
 def test_a_bag_of_frames_reprocesses_to_the_recorded_positions_and_outputs(recorded_run,
                                                                             tmp_path):
     bag_dir, _ = recorded_run
-    frames = _frames_only(bag_dir, str(tmp_path / 'frames'))
+    # Frames and the recorded outputs, not the positions: reprocess tracks, then compares.
+    frames = _frames_only(bag_dir, str(tmp_path / 'frames'), keep=OUTPUTS)
     out = str(tmp_path / 'again')
-    result = subprocess.run([sys.executable, '-m', 'microball_ros.cli', 'reprocess', frames,
-                             '--output', out], capture_output=True, text=True, timeout=240)
+    result, verdict = _reprocess(frames, out)
     assert result.returncode == 0, result.stderr[-2000:]
     assert 'has only camera frames' in result.stderr
+    assert verdict == 'byte-identical', result.stdout
     recorded, again = open_bag(bag_dir), open_bag(out)
     # A fresh camera_tracker given the recorded frames and parameters publishes the recorded
     # positions, and the estimator and identifier then their recorded outputs, to the byte.
@@ -165,6 +186,12 @@ def test_a_bag_of_frames_reprocesses_to_the_recorded_positions_and_outputs(recor
         old = [m.data for m in recorded.messages([topic])]
         assert [m.data for m in again.messages([topic])] == old, topic
         assert old
+    # A bag of only frames has nothing recorded to compare the reprocessed topics with.
+    nothing = check(_frames_only(bag_dir, str(tmp_path / 'only')), out)
+    assert nothing.topics == () and nothing.verdict.ok
+    assert nothing.verdict.line == (f"not compared: {tmp_path / 'only'} has no recorded "
+                                    '/tracking/positions, /estimation/derivatives, '
+                                    '/friction/model')
 
 
 def test_a_bag_of_frames_analyses_like_its_recorded_positions(recorded_run, tmp_path):
@@ -264,12 +291,85 @@ def test_sample_bag_analyses_to_its_expected_result(tmp_path):
     assert low <= 1.2 <= high
 
 
+def _check_reproduction(bag_dir, out):
+    """Reprocess bag_dir into out, check the determinism contract; return (same, verdict).
+
+    Everywhere, decoded field by field: the counts are equal and every number is within
+    relative 1e-9 (io.compare). Where the bag's platform fingerprint key is the one the
+    reprocessing wrote into its output (same platform, same stack): the bytes are equal.
+    """
+    result, verdict = _reprocess(bag_dir, out)
+    assert result.returncode == 0, result.stderr[-2000:] + result.stdout
+    recorded, again = open_bag(bag_dir), open_bag(out)
+    platform = fingerprint.from_custom_data(recorded.metadata['custom_data'])
+    current = fingerprint.from_custom_data(again.metadata['custom_data'])
+    assert current is not None and current['key'] == fingerprint.numeric_key(current)
+    same = platform is not None and platform.get('key') == current['key']
+    identical = True
+    for topic in OUTPUTS:
+        old, new = decode(recorded, topic), decode(again, topic)
+        assert len(old) == len(new) == recorded.topics[topic].count >= 2, topic
+        comparison = compare_messages(old, new, topic)
+        assert not comparison.differs, comparison
+        old_bytes = [m.data for m in recorded.messages([topic])]
+        new_bytes = [m.data for m in again.messages([topic])]
+        if same:
+            assert new_bytes == old_bytes, topic
+        identical = identical and new_bytes == old_bytes
+    if identical:
+        assert verdict == 'byte-identical', result.stdout
+    else:
+        assert verdict.startswith('within tolerance (largest relative difference '), verdict
+        figure = float(verdict.split('difference ')[1].split()[0])
+        assert 0 < figure <= 1e-9
+    if platform is None:
+        assert 'platform: no fingerprint recorded' in result.stdout
+    elif not identical:
+        assert 'platform differs: ' in result.stdout
+    return same, verdict
+
+
 def test_sample_bag_reprocesses_to_its_recorded_outputs(tmp_path):
-    out = str(tmp_path / 'again')
-    result = subprocess.run([sys.executable, '-m', 'microball_ros.cli', 'reprocess', SAMPLE,
-                             '--output', out], capture_output=True, text=True, timeout=240)
-    assert result.returncode == 0, result.stderr[-2000:]
-    recorded, again = open_bag(SAMPLE), open_bag(out)
-    for topic in ('/estimation/derivatives', '/friction/model'):
-        assert [m.data for m in again.messages([topic])] == \
-            [m.data for m in recorded.messages([topic])]
+    # The sample was recorded on another CPU (and before bags carried a fingerprint): every
+    # number within relative 1e-9, verdicts and counts identical; bytes only on its platform.
+    first = str(tmp_path / 'first')
+    _check_reproduction(SAMPLE, first)
+    # The output carries this platform's fingerprint and the nodes' parameters, so it
+    # reprocesses in turn, here byte for byte: reprocessing twice gives the same bytes.
+    assert yaml.safe_load(open_bag(first).metadata['custom_data'][
+        'microball.three_stage_estimator']) == {'exposure': 1 / 60}
+    same, verdict = _check_reproduction(first, str(tmp_path / 'second'))
+    assert same and verdict == 'byte-identical'
+
+
+def test_reprocess_names_the_first_difference_and_the_platforms_and_exits_3(tmp_path):
+    # A bag whose recorded /friction/model 4 has A off by 1e-6, from another (made-up) CPU.
+    bag = open_bag(SAMPLE)
+    from microball_msgs.msg import FrictionModel
+
+    other = dict(fingerprint.fingerprint(), cpu='Other CPU', numpy_simd='X86_V1 MADE_UP')
+    other['key'] = fingerprint.numeric_key(other)
+    tampered, models = str(tmp_path / 'tampered'), 0
+    with BagWriter(tampered) as writer:
+        writer.custom_data.update(bag.metadata['custom_data'])
+        writer.custom_data.update(fingerprint.to_custom_data(other))
+        for name, info in sorted(bag.topics.items()):
+            writer.add_topic(name, info.type, info.qos_profiles_yaml)
+        for message in bag.messages():
+            data = message.data
+            if message.topic == '/friction/model':
+                if models == 4:
+                    model = deserialize_message(data, FrictionModel)
+                    recorded_a, model.a = model.a, model.a * (1 + 1e-6)
+                    data = serialize_message(model)
+                models += 1
+            writer.write(message.topic, data, message.log_time_ns, message.publish_time_ns)
+    result, verdict = _reprocess(tampered, str(tmp_path / 'again'))
+    assert result.returncode == 3, result.stderr[-2000:] + result.stdout
+    assert verdict.startswith('differs: first differing message 4 on /friction/model, field a: '
+                              f'recorded {recorded_a * (1 + 1e-6)!r}, new ')
+    assert verdict.endswith(' (relative difference 1e-06)')
+    new_a = float(verdict.split(', new ')[1].split()[0])
+    assert new_a == pytest.approx(recorded_a, rel=1e-9)
+    assert 'platform differs: numpy_simd: X86_V1 MADE_UP -> ' in result.stdout
+    assert 'platform differs: cpu: Other CPU -> ' in result.stdout

@@ -5,23 +5,32 @@ parameters the run recorded (bag metadata, custom_data 'microball.<node>'), the 
 /tracking/positions are published lock-step (each after the estimator acknowledged the
 previous one), and an in-process recorder writes the replayed positions and the nodes' fresh
 /estimation/derivatives and /friction/model to the output bag. The nodes' outputs depend only
-on their ordered input, so the new messages equal the recorded ones byte for byte.
+on their ordered input, so the new messages equal the recorded ones byte for byte on the
+platform that recorded them (and within relative 1e-9 on another: DESIGN.md section 4).
 
 A bag with only /camera/image_raw goes through a fresh camera_tracker first (parameters as in
 frames.tracker_parameters); each frame is published only after the tracker's position for the
 previous one was recorded, so no frame can be dropped however slow the tracker.
+
+The output bag keeps the parameters the nodes were given and this platform's fingerprint in its
+custom_data, so it can itself be reprocessed. ``check()`` compares the reproduced topics with the
+recorded ones (microball_ros.io.compare) and names both platforms.
 """
 
 import tempfile
 import time
+from typing import NamedTuple
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
+import yaml
 
 from microball_ros.app.experiment import NodeCrashed, NodeProcesses
 from microball_ros.app.play import Player, use_lockstep_profile
 from microball_ros.core.windowing import PositionWindower, Window, WindowSettings
+from microball_ros.io import fingerprint
 from microball_ros.io.bags.reader import IMAGES_TOPIC, BagError, open_bag, recorded_parameters
+from microball_ros.io.compare import BYTE_IDENTICAL, NOT_COMPARED, compare_bags
 from microball_ros.io.frames import TRACKER, tracked_frames, tracker_parameters
 from microball_ros.nodes.recorder import Recorder
 from microball_ros.nodes.three_stage_estimator import PARAMS as ESTIMATOR_PARAMS
@@ -70,6 +79,22 @@ def _tracked_samples(bag, tracker_parameters):
         yield stamp_ns, index, stator, slider, stator == stator and slider == slider
 
 
+def output_custom_data(bag, parameters):
+    """Return the output bag's custom_data (YAML text): parameters and this platform.
+
+    The source bag's 'microball.<node>' entries, those of the nodes that ran here replaced by
+    the values they were given, and this platform's fingerprint (never the recorded one).
+    """
+    kept = {key: value for key, value in
+            ((bag.metadata or {}).get('custom_data') or {}).items()
+            if key.startswith('microball.') and key != fingerprint.CUSTOM_DATA_KEY}
+    for name, values in parameters.items():
+        kept[f'microball.{name}'] = yaml.safe_dump(
+            {k: v for k, v in values.items() if k != 'wait_for_subscribers'})
+    kept.update(fingerprint.to_custom_data())
+    return yaml.safe_dump(kept)
+
+
 def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
     """Reprocess bag_path into the bag directory output; return per-topic counts.
 
@@ -106,7 +131,8 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
     processes = NodeProcesses({name: parameters[name] for name in nodes}, log_dir)
     recorder = Recorder(context=context, parameter_overrides=[
         rclpy.parameter.Parameter('output', value=output),
-        rclpy.parameter.Parameter('topics', value=recorded)])
+        rclpy.parameter.Parameter('topics', value=recorded),
+        rclpy.parameter.Parameter('custom_data', value=output_custom_data(bag, parameters))])
     player = Player(bag, topics=[source], context=context)
     for node in (recorder, player):
         executor.add_node(node)
@@ -155,3 +181,64 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
         player.destroy_node()
         rclpy.shutdown(context=context)
     return counts
+
+
+class Check(NamedTuple):
+    """What check() found: the verdict, the topics compared and the two platforms.
+
+    ``recorded_platform`` is the bag's fingerprint (None for a bag recorded before bags
+    carried one), ``platform`` this process's.
+    """
+
+    verdict: object
+    topics: tuple
+    recorded_platform: dict | None
+    platform: dict
+
+    @property
+    def same_platform(self):
+        """Return True if the bag carries a fingerprint whose numeric key is this platform's."""
+        return (self.recorded_platform is not None
+                and self.recorded_platform.get('key') == self.platform.get('key'))
+
+    def platform_lines(self):
+        """Return lines naming both platforms, and how they differ unless byte-identical."""
+        def name(info):
+            return f"{info.get('key')} ({info.get('cpu')}, numpy SIMD {info.get('numpy_simd')})"
+
+        recorded = self.recorded_platform
+        if recorded is None:
+            return ['platform: no fingerprint recorded (the bag predates them); reprocessed on '
+                    f'{name(self.platform)}']
+        lines = [f'platform: recorded on {name(recorded)}',
+                 f'platform: reprocessed on {name(self.platform)}']
+        if self.verdict.status not in (BYTE_IDENTICAL, NOT_COMPARED):
+            lines += [f'platform differs: {line}'
+                      for line in fingerprint.differences(recorded, self.platform)]
+            if self.same_platform:
+                lines.append('platform: same fingerprint key, so byte identity was expected '
+                             '(determinism contract (a))')
+        return lines
+
+
+def reproduced_topics(bag):
+    """Return the topics reprocess reproduces from this bag, in causal order."""
+    return OUTPUTS if POSITIONS in bag.topics else (POSITIONS, *OUTPUTS)
+
+
+def check(bag_path, output):
+    """Compare the reprocessed bag output with the recorded bag_path; return a Check.
+
+    Only the reproduced topics the recorded bag has are compared (a bag of only frames has
+    none: the verdict is then 'not compared').
+    """
+    recorded, new = open_bag(bag_path), open_bag(output)
+    reproduced = reproduced_topics(recorded)
+    topics = tuple(t for t in reproduced if t in recorded.topics)
+    verdict = compare_bags(recorded, new, topics)
+    if not topics:
+        verdict = verdict._replace(line=f'{NOT_COMPARED}: {bag_path} has no recorded '
+                                        f'{", ".join(reproduced)}')
+    custom_data = (recorded.metadata or {}).get('custom_data')
+    return Check(verdict, topics, fingerprint.from_custom_data(custom_data),
+                 fingerprint.fingerprint())
