@@ -10,6 +10,7 @@ agree byte for byte (DESIGN.md section 4, determinism contract (a)).
 
 import hashlib
 import json
+import os
 import platform
 import sys
 
@@ -37,13 +38,21 @@ def _numpy_simd():
 
 
 def _blas():
-    """Return each loaded BLAS library as 'name version architecture', joined by '; '."""
+    """Return numpy's and scipy's BLAS as 'name version architecture', joined by '; '.
+
+    Only the libraries our numbers go through: OpenCV brings an OpenBLAS of its own, and
+    whether a process imported cv2 must not change the fingerprint.
+    """
     import scipy.linalg  # noqa: F401  (loads scipy's own OpenBLAS, which threadpoolctl then sees)
     from threadpoolctl import threadpool_info
 
+    roots = {os.path.dirname(os.path.dirname(module.__file__)) for module in (np, scipy)}
+    ours = tuple(os.path.join(root, name) + os.sep for root in roots
+                 for name in ('numpy', 'numpy.libs', 'scipy', 'scipy.libs'))
     libraries = sorted({
         f"{info.get('internal_api')} {info.get('version')} {info.get('architecture')}"
-        for info in threadpool_info() if info.get('user_api') == 'blas'})
+        for info in threadpool_info()
+        if info.get('user_api') == 'blas' and info.get('filepath', '').startswith(ours)})
     return '; '.join(libraries) or 'none'
 
 
