@@ -1,8 +1,11 @@
-"""What every node shares: data-path QoS, parameter declaration and validation, main()."""
+"""What every node shares: QoS, parameter declaration and validation, diagnostics, main()."""
 
+from collections import Counter
 from dataclasses import dataclass
 import sys
+import time
 
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -59,6 +62,80 @@ class Param:
             descriptor.integer_range = [IntegerRange(
                 from_value=int(self.low), to_value=int(self.high), step=0)]
         return descriptor
+
+
+class NodeDiagnostics:
+    """A node's health on /diagnostics (diagnostic_msgs/DiagnosticArray), once a period.
+
+    The node calls ``received()`` for each input message it accepts, ``dropped(kind, detail)``
+    for each it refuses (logged once per kind, then only counted), ``count(name)`` for other
+    events (lost marks), and ``error(text)`` for a failure it survived. Each period one status
+    is published: the input rate over the period, the totals, the drops per kind and the last
+    error; level WARN while drops or errors are new in the period, else OK. rqt_robot_monitor
+    and Foxglove's diagnostics panel show it. Wall-clock rate only: nothing downstream of a
+    node's data depends on it (determinism: docs/design.md section 4).
+    """
+
+    def __init__(self, node, period=1.0, hardware_id=''):
+        self._node = node
+        self._name = f'{node.get_namespace().rstrip("/")}/{node.get_name()}'.lstrip('/')
+        self._hardware_id = hardware_id
+        self._publisher = node.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.received_total = 0
+        self.drops = Counter()
+        self.counts = Counter()
+        self.last_error = ''
+        self._received_at_last = 0
+        self._problems_at_last = 0
+        self._last_time = time.monotonic()
+        node.create_timer(period, self.publish)
+
+    def received(self):
+        """Count one accepted input message."""
+        self.received_total += 1
+
+    def dropped(self, kind, detail=''):
+        """Count one refused input message; log the first of each kind."""
+        if not self.drops[kind]:
+            self._node.get_logger().warning(
+                f'dropped {kind}{": " + detail if detail else ""} (logged once; see '
+                '/diagnostics for the count)')
+        self.drops[kind] += 1
+
+    def count(self, name, n=1):
+        """Count another event (for example a lost mark)."""
+        self.counts[name] += n
+
+    def error(self, text):
+        """Record a failure the node survived (logged each time)."""
+        self.last_error = text
+        self._node.get_logger().error(text)
+        self.counts['errors'] += 1
+
+    def status(self):
+        """Return the DiagnosticStatus of the period since the last call."""
+        now = time.monotonic()
+        rate = (self.received_total - self._received_at_last) / max(now - self._last_time, 1e-9)
+        problems = sum(self.drops.values()) + self.counts['errors']
+        new_problems = problems - self._problems_at_last
+        self._received_at_last, self._problems_at_last = self.received_total, problems
+        self._last_time = now
+        values = {'rate': f'{rate:.3f}', 'received': str(self.received_total),
+                  'dropped': str(sum(self.drops.values())), 'last error': self.last_error}
+        values.update({f'dropped: {kind}': str(n) for kind, n in sorted(self.drops.items())})
+        values.update({name: str(n) for name, n in sorted(self.counts.items())})
+        level = DiagnosticStatus.WARN if new_problems else DiagnosticStatus.OK
+        message = (f'{new_problems} dropped or failed in the last period' if new_problems
+                   else 'ok')
+        return DiagnosticStatus(level=level, name=self._name, message=message,
+                                hardware_id=self._hardware_id,
+                                values=[KeyValue(key=k, value=v) for k, v in values.items()])
+
+    def publish(self):
+        """Publish the status of the period (the timer's callback)."""
+        array = DiagnosticArray(status=[self.status()])
+        array.header.stamp = self._node.get_clock().now().to_msg()
+        self._publisher.publish(array)
 
 
 def declare_parameters(node, params, validate):
