@@ -479,8 +479,11 @@ def test_file_cut_after_flush_is_reported_then_recovered_by_reindex(tmp_path):
 
         lines = []
         assert reindex(str(directory), log=lines.append) == {POSITIONS: 45}
-        assert len(lines) == 1 and 'source_0.mcap.truncated' in lines[0]
-        assert (directory / 'source_0.mcap.truncated').read_bytes() == complete[:cut]
+        # the original is kept beside the bag, which holds only what rosbag2 lists
+        backup = tmp_path / f'killed{number}.truncated' / 'source_0.mcap'
+        assert len(lines) == 1 and str(backup) in lines[0]
+        assert backup.read_bytes() == complete[:cut]
+        assert sorted(os.listdir(directory)) == ['metadata.yaml', 'source_0.mcap']
         bag = open_bag(str(directory))
         assert [m.data for m in bag.messages()] == flushed
         assert bag.topics[POSITIONS].qos_profiles_yaml == _qos()
@@ -596,7 +599,8 @@ def test_corrupted_chunk_in_the_middle(tmp_path):
 
     # the second chunk held frames 10..19 (positions and images) and the model of frame 19
     assert reindex(directory) == {POSITIONS: 30, IMAGES: 30, MODELS: 3}
-    assert os.path.exists(path + '.truncated')
+    assert os.path.exists(os.path.join(directory + '.truncated', 'bag_0.mcap'))
+    assert sorted(os.listdir(directory)) == ['bag_0.mcap', 'metadata.yaml']
     frames = [deserialize_message(m.data, TrackedPositions).frame_index
               for m in open_bag(directory).messages(POSITIONS)]
     assert frames == list(range(10)) + list(range(20, 40))

@@ -3,14 +3,18 @@
 Topics are discovered while recording (all of them, or the ones named in ``topics``); each is
 subscribed once it has a publisher, with ``raw=True`` so messages are written as received
 (no decode/encode round trip), and with a QoS that matches its publishers (reliable if they
-all are, transient local if they all are), as rosbag2 does. Log time is the receive time;
-publish time is the message's header stamp where its type starts with a std_msgs/Header.
-The bag is flushed about once a second, so a killed recorder loses at most that much
+all are, transient local if they all are), as rosbag2 does. Log time is the receipt time
+(system clock, when the recorder takes the message); publish time is the middleware's source
+timestamp (the publisher's system clock when it wrote the message), as rosbag2_transport's
+recorder stores them, or the receipt time where the middleware gives none. Never a header
+stamp: both times are on the same clock, so ``--message-order sent`` and any tool trusting
+publish time see the recording's clock. The bag's custom_data (with the platform
+fingerprint) is written when the bag opens, and the bag is flushed about once a second, so a
+killed recorder loses at most that much and keeps its custom_data and topics
 (``microball reindex`` repairs it).
 Lost messages are counted from the middleware's message-lost events.
 """
 
-import struct
 import sys
 import time
 
@@ -58,21 +62,14 @@ def check_parameters(values):
 DRAIN_LIMIT = 1000
 
 
-def header_stamp_reader(message_type):
-    """Return a function CDR bytes -> header stamp (ns), or None if the type has no header.
+def publish_time(info, received):
+    """Return a message's publish time: the middleware's source timestamp, else ``received``.
 
-    A std_msgs/Header first field puts builtin_interfaces/Time (int32 sec, uint32 nanosec)
-    right after the 4-byte CDR encapsulation header, so the stamp is read without decoding.
+    ``info`` is the MessageInfo rclpy hands a callback (or take_message returns); a middleware
+    that does not stamp sources gives 0 there.
     """
-    fields = list(message_type.get_fields_and_field_types().values())
-    if not fields or fields[0] != 'std_msgs/Header':
-        return None
-
-    def stamp(data):
-        little = data[1] == 1  # encapsulation CDR_LE
-        sec, nanosec = struct.unpack_from('<iI' if little else '>iI', data, 4)
-        return sec * 1_000_000_000 + nanosec
-    return stamp
+    source = info.get('source_timestamp') if info else None
+    return source if source and source > 0 else received
 
 
 def subscription_qos(publisher_profiles):
@@ -90,9 +87,9 @@ class Recorder(Node):
         self._values = declare_parameters(self, PARAMS, check_parameters)
         values = self._values
         compression = None if values['compression'] == 'none' else values['compression']
-        self._writer = BagWriter(values['output'], compression=compression)
-        if values['custom_data']:
-            self._writer.custom_data.update(yaml.safe_load(values['custom_data']))
+        custom_data = yaml.safe_load(values['custom_data']) if values['custom_data'] else {}
+        self._writer = BagWriter(values['output'], compression=compression,
+                                 custom_data=custom_data)
         self._wanted = {t for t in values['topics'] if t}
         self._recorded = {}
         self._closed = None
@@ -126,15 +123,14 @@ class Recorder(Node):
         if not offered:
             return  # subscribe once a publisher shows its QoS (next discovery round)
         self._writer.add_topic(topic, type_name, qos_profiles_yaml(offered))
-        stamp = header_stamp_reader(message_type)
         self.lost[topic] = 0
 
-        def record(data, topic=topic, stamp=stamp):
+        def record(data, info, topic=topic):
             received = time.time_ns()  # system time, as rosbag2 stamps receipt
-            self._writer.write(topic, data, received, stamp(data) if stamp else received)
+            self._writer.write(topic, data, received, publish_time(info, received))
 
-        def on_message(data, topic=topic, record=record):
-            record(data)
+        def on_message(data, info, topic=topic, record=record):
+            record(data, info)
             # Take what else has arrived on this topic here, in order: a round of the executor
             # costs several times the write (measured in bench/bench_bags.py).
             subscription = self._recorded[topic]
@@ -143,7 +139,7 @@ class Recorder(Node):
                     taken = subscription.handle.take_message(subscription.msg_type, True)
                 if taken is None:
                     break
-                record(taken[0])
+                record(taken[0], taken[1])
 
         def on_lost(info, topic=topic):
             self.lost[topic] += info.total_count_change

@@ -3,36 +3,50 @@
 The layout is the one rosbag2_storage_mcap writes (ros2/rosbag2, rosbag2_storage_mcap/src/
 mcap_storage.cpp): MCAP profile ``ros2``; one schema per type, encoding ``ros2msg``
 (schema.message_definition); one channel per topic, message encoding ``cdr``, channel metadata
-``offered_qos_profiles`` (a YAML string) and ``topic_type_hash``; at the end a Metadata record
-named ``rosbag2`` whose ``serialized_metadata`` is the bag metadata as YAML, so that rosbag2
-reads the QoS strings as version 9; and ``metadata.yaml`` (rosbag2_bagfile_information,
-version 9) next to the file.
+``offered_qos_profiles`` (a YAML string) and ``topic_type_hash``; Metadata records named
+``rosbag2`` whose ``serialized_metadata`` is the bag metadata as YAML (version 9); and
+``metadata.yaml`` (rosbag2_bagfile_information, version 9) next to the file. As rosbag2's
+SequentialWriter does, the ``rosbag2`` record is written when the bag opens (custom_data and
+ros_distro, no topics yet) and again when it closes (complete). An MCAP file is append-only, so
+a closed file holds both in its data section; only the closing one is in the summary (metadata
+index, statistics), so indexed readers see exactly one, and front-to-back readers meet the
+complete one last and keep the last, as rosbag2's MCAPStorage::read_metadata does (rosbag2
+itself indexes both). metadata.yaml is written at open too, and replaced at close. Every bag's
+custom_data carries the platform fingerprint (fingerprint.to_custom_data).
 
 Crash safety: messages are grouped in chunks (CRC-checked, optionally compressed); flush()
 closes the current chunk and fsyncs, so a killed recorder loses only what came after the last
-flush(). reader.reindex() rebuilds such a bag.
+flush(), and its bag keeps custom_data (in the open-time record) and its topics (in the
+channels). repair.reindex() rebuilds such a bag.
 """
 
 from importlib.metadata import PackageNotFoundError, version
 import os
 
+from mcap.data_stream import RecordBuilder
+from mcap.records import Metadata
 from mcap.writer import CompressionType, Writer
-import yaml
 
 from microball_ros import __version__ as _package_version
+from microball_ros.core.errors import BagError
+from microball_ros.io import fingerprint
+from microball_ros.io.bags.metadata import (
+    MESSAGE_ENCODING,
+    RECORD_NAME,
+    bag_metadata,
+    record_fields,
+    ros_distro,
+    write_metadata_yaml,
+)
 from microball_ros.io.bags.schema import (
-    BagError,
     message_definition,
     normalize_type_name,
     parse_qos_profiles,
     type_hash,
 )
 
-METADATA_VERSION = 9
-ROS_DISTRO = 'kilted'
 PROFILE = 'ros2'
 SCHEMA_ENCODING = 'ros2msg'
-MESSAGE_ENCODING = 'cdr'
 
 _COMPRESSION = {None: CompressionType.NONE, '': CompressionType.NONE, 'none': CompressionType.NONE,
                 'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4}
@@ -56,70 +70,6 @@ def compression_type(compression):
         return _COMPRESSION[compression]
     except (KeyError, TypeError):
         raise BagError(f'unknown compression {compression!r} (use none, zstd or lz4)') from None
-
-
-def bag_metadata(files, topics, *, custom_data=None, ros_distro=ROS_DISTRO):
-    """Return the rosbag2_bagfile_information mapping (metadata version 9).
-
-    ``files``: list of dicts with path (relative to the bag), start_ns, end_ns, message_count.
-    ``topics``: list of dicts with name, type, qos_profiles_yaml, type_hash, message_count.
-    """
-    counted = [f for f in files if f['message_count']]
-    start = min((f['start_ns'] for f in counted), default=0)
-    end = max((f['end_ns'] for f in counted), default=0)
-    return {
-        'version': METADATA_VERSION,
-        'storage_identifier': 'mcap',
-        'duration': {'nanoseconds': end - start},
-        'starting_time': {'nanoseconds_since_epoch': start},
-        'message_count': sum(f['message_count'] for f in files),
-        'topics_with_message_count': [
-            {
-                'topic_metadata': {
-                    'name': topic['name'],
-                    'type': topic['type'],
-                    'serialization_format': MESSAGE_ENCODING,
-                    'offered_qos_profiles': parse_qos_profiles(topic['qos_profiles_yaml']),
-                    'type_description_hash': topic.get('type_hash', ''),
-                },
-                'message_count': topic['message_count'],
-            }
-            for topic in topics
-        ],
-        'compression_format': '',
-        'compression_mode': '',
-        'relative_file_paths': [f['path'] for f in files],
-        'files': [
-            {
-                'path': f['path'],
-                'starting_time': {'nanoseconds_since_epoch': f['start_ns'] if f['message_count']
-                                  else 0},
-                'duration': {'nanoseconds': (f['end_ns'] - f['start_ns'])
-                             if f['message_count'] else 0},
-                'message_count': f['message_count'],
-            }
-            for f in files
-        ],
-        'custom_data': dict(custom_data or {}),
-        'ros_distro': ros_distro,
-    }
-
-
-def dump_yaml(data):
-    """Return YAML text in the key order given (block style, like rosbag2's yaml-cpp output)."""
-    return yaml.safe_dump(data, sort_keys=False, default_flow_style=False, allow_unicode=True)
-
-
-def write_metadata_yaml(directory, information):
-    """Write <directory>/metadata.yaml atomically (temporary file, fsync, rename)."""
-    path = os.path.join(directory, 'metadata.yaml')
-    temporary = path + '.tmp'
-    with open(temporary, 'w', encoding='utf-8') as handle:
-        handle.write(dump_yaml({'rosbag2_bagfile_information': information}))
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(temporary, path)
-    return path
 
 
 class McapFileWriter:
@@ -209,15 +159,30 @@ class McapFileWriter:
         return {'path': relative_path, 'start_ns': self.start_ns or 0,
                 'end_ns': self.end_ns or 0, 'message_count': self.message_count}
 
+    def write_opening_metadata(self, information):
+        """Write a 'rosbag2' Metadata record now, outside the summary, and make it durable.
+
+        What rosbag2's SequentialWriter::open stores (MCAPStorage::update_metadata), so that a
+        file whose writer is killed still carries custom_data and ros_distro. The record goes
+        straight to the data section (Metadata records are never inside chunks) but, unlike
+        mcap's Writer.add_metadata, into neither the metadata index nor the statistics: the
+        record close() writes is then the only one an indexed reader (mcap's SeekingReader,
+        Foxglove's indexed reader, rosbag2) finds, and a front-to-back reader meets it last.
+        """
+        self._mcap.flush()  # the header and any chunk in progress go first
+        builder = RecordBuilder()
+        Metadata(name=RECORD_NAME, metadata=record_fields(information)).write(builder)
+        self._file.write(builder.end())
+        self._file.flush()
+        os.fsync(self._file.fileno())
+
     def close(self, rosbag2_metadata=None):
         """Write the Metadata record (if given), the summary and the footer; fsync; close."""
         if self.closed:
             return
         try:
             if rosbag2_metadata is not None:
-                self._mcap.add_metadata('rosbag2', {
-                    'serialized_metadata': dump_yaml(rosbag2_metadata).strip(),
-                    'ROS_DISTRO': rosbag2_metadata.get('ros_distro', ROS_DISTRO)})
+                self._mcap.add_metadata(RECORD_NAME, record_fields(rosbag2_metadata))
             self._mcap.finish()
             self._file.flush()
             os.fsync(self._file.fileno())
@@ -232,14 +197,22 @@ class BagWriter:
     Use as a context manager (closing also on an exception, so what was written stays a
     complete bag)::
 
-        with BagWriter('run1') as bag:
+        with BagWriter('run1', custom_data={'note': 'bench 3'}) as bag:
             bag.add_topic('/tracking/positions', 'microball_msgs/msg/TrackedPositions', qos)
             bag.write('/tracking/positions', cdr_bytes, log_time_ns, publish_time_ns)
             bag.flush()  # about once a second: a kill -9 loses at most what follows
+
+    ``custom_data`` (strings to strings) is known at open, so a bag whose writer is killed
+    keeps it; the platform fingerprint (key fingerprint.CUSTOM_DATA_KEY) is merged in unless
+    given. Entries added to ``bag.custom_data`` later are in the bag once it closes.
     """
 
-    def __init__(self, directory, *, compression='zstd', chunk_size=1024 * 1024):
+    def __init__(self, directory, *, compression='zstd', chunk_size=1024 * 1024,
+                 custom_data=None, distro=None):
         compression_type(compression)
+        custom = {**fingerprint.to_custom_data(), **dict(custom_data or {})}
+        if not all(isinstance(k, str) and isinstance(v, str) for k, v in custom.items()):
+            raise BagError('custom_data must map strings to strings')
         directory = os.path.abspath(directory)
         try:
             if os.path.exists(directory):
@@ -259,8 +232,17 @@ class BagWriter:
         except OSError as error:
             raise BagError(f'{directory}: cannot create the bag ({error.strerror or error})'
                            ) from None
-        self.custom_data = {}
-        self.metadata_path = None
+        self.custom_data = custom
+        self.ros_distro = ros_distro() if distro is None else distro
+        # What rosbag2's SequentialWriter::open stores: custom_data and ros_distro, no topics.
+        information = self.metadata()
+        try:
+            self._file.write_opening_metadata(information)
+            self.metadata_path = write_metadata_yaml(self.directory, information)
+        except OSError as error:
+            self._file.close()
+            raise BagError(f'{directory}: cannot write the bag ({error.strerror or error})'
+                           ) from None
 
     def __enter__(self):
         return self
@@ -312,10 +294,10 @@ class BagWriter:
         return bag_metadata([self._file.file_information(self.relative_path)],
                             [dict(topic, message_count=self._file.counts[topic['name']])
                              for topic in self._file.topics],
-                            custom_data=self.custom_data)
+                            custom_data=self.custom_data, ros_distro=self.ros_distro)
 
     def close(self):
-        """Finish the MCAP file (summary, statistics, indexes), write metadata.yaml.
+        """Finish the MCAP file (final 'rosbag2' record, summary, indexes), rewrite metadata.yaml.
 
         Return {topic: message count}. Calling it again does nothing more.
         """
