@@ -8,10 +8,21 @@ BIN := $(VENV)/bin
 BUILD := build/msg_defs
 MSGS := $(wildcard msg_defs/msg/*.msg msg_defs/srv/*.srv)
 
-.PHONY: setup demo test test-fast lint bench clean check-tools
+.PHONY: setup foxglove demo test test-fast lint bench clean check-tools
 .DEFAULT_GOAL := demo
 
-setup: $(VENV)/.stamp-package
+setup: $(VENV)/.stamp-package foxglove
+
+# Foxglove's own JavaScript readers (@mcap/core, @foxglove/rosmsg2-serialization), pinned in
+# test/foxglove/package-lock.json, for the test that reads our bags as Foxglove does; without
+# npm that test skips and says so.
+foxglove: test/foxglove/node_modules/.stamp
+test/foxglove/node_modules/.stamp: test/foxglove/package-lock.json
+	@if command -v npm >/dev/null 2>&1; then \
+	  echo '[setup] installing Foxglove readers for the bag tests (npm ci)'; \
+	  npm ci --prefix test/foxglove --no-audit --no-fund --silent && touch $@ \
+	  || { echo 'set-up failed: npm ci in test/foxglove'; exit 1; }; \
+	else echo 'set-up: npm not found; the Foxglove reader test will skip'; fi
 
 check-tools:
 	@command -v $(PYTHON) >/dev/null || { echo 'set-up: $(PYTHON) is missing (need Python 3.11 with venv)'; exit 1; }

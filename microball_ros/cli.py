@@ -469,7 +469,7 @@ def build_parser():
     reindex = commands.add_parser(
         'reindex', help='repair a bag whose recorder died',
         description='Rebuild the summary and metadata.yaml of a bag from its complete chunks '
-                    '(the original file is kept as .truncated).')
+                    '(the original files are kept beside the bag, in BAG.truncated/).')
     reindex.add_argument('bag', help='bag directory')
     reindex.set_defaults(func=cmd_reindex)
 

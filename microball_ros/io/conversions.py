@@ -107,7 +107,7 @@ def image_message(frame, stamp, frame_id='camera'):
 
 def image_array(msg):
     """Return a sensor_msgs/Image as a grey H x W uint8 array (8-bit encodings only)."""
-    from microball_ros.core.tracking import image_to_gray
+    from microball_ros.io.video import image_to_gray
 
     return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data)
 

@@ -19,9 +19,9 @@ import yaml
 
 from microball_ros.core.errors import BagError
 from microball_ros.core.records import PositionRecord, check_time_base
-from microball_ros.core.tracking import image_to_gray
 from microball_ros.io.bags.bag import Bag, open_bag
 from microball_ros.io.bags.mcap_file import one_line
+from microball_ros.io.video import image_to_gray
 
 POSITIONS_TOPIC = '/tracking/positions'
 POSITIONS_TYPE = 'microball_msgs/msg/TrackedPositions'
