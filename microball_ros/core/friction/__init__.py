@@ -5,7 +5,8 @@ acceleration is ``a_slid = -L(v_rel)``, the friction per unit mass opposing the 
 quantities are SI: m, s, m/s, m/s^2. ``from microball_ros.core import friction`` and then
 ``friction.<name>`` reaches every public name of the package's modules:
 
-- ``laws``: the modified Langevin function and the laws (``STATIC_LAWS``, ``LuGre``,
+- ``langevin``: the modified Langevin function and its slope, to a few ulps;
+- ``laws``: the laws (``STATIC_LAWS``, ``LuGre``,
   ``LaggedFriction``), all with one interface (``force``, ``acceleration``, the state
   interface of laws with memory);
 - ``simulation``: the slider driven by a law, ``integrate_rk4`` and ``simulate_slider``;
@@ -26,6 +27,12 @@ from microball_ros.core.friction.fitting import (
     fit_least_squares,
     fit_two_slope,
 )
+from microball_ros.core.friction.langevin import (
+    langevin,
+    langevin_slope,
+    unit_langevin,
+    unit_langevin_slope,
+)
 from microball_ros.core.friction.laws import (
     DEFAULT_V_SMOOTH,
     STATIC_LAWS,
@@ -38,10 +45,6 @@ from microball_ros.core.friction.laws import (
     StaticLaw,
     Stribeck,
     Viscous,
-    langevin,
-    langevin_slope,
-    unit_langevin,
-    unit_langevin_slope,
 )
 from microball_ros.core.friction.simulation import check_samples, integrate_rk4, simulate_slider
 from microball_ros.core.friction.validation import ValidationResult, fit_sinusoid, validate
