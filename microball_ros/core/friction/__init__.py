@@ -10,8 +10,8 @@ quantities are SI: m, s, m/s, m/s^2. ``from microball_ros.core import friction``
   ``LaggedFriction``), all with one interface (``force``, ``acceleration``, the state
   interface of laws with memory);
 - ``simulation``: the slider driven by a law, ``integrate_rk4`` and ``simulate_slider``;
-- ``fitting``: ``fit_least_squares`` (bounded, with profile-likelihood intervals) and the
-  paper's ``fit_two_slope``;
+- ``fitting``: ``fit_least_squares`` (bounded, with profile-likelihood intervals);
+- ``two_slope``: the paper's own ``fit_two_slope``;
 - ``comparison``: ``compare_laws``, every static law fitted and ranked by AIC, a law that
   cannot be fitted recorded as a failed ``LawComparison`` instead of raising;
 - ``validation``: the paper's Fig. 9 check, ``validate`` and ``fit_sinusoid``.
@@ -22,10 +22,8 @@ from microball_ros.core.friction.fitting import (
     LOG_BOUND,
     FitResult,
     ScaledResiduals,
-    TwoSlopeResult,
     check_fit_data,
     fit_least_squares,
-    fit_two_slope,
 )
 from microball_ros.core.friction.langevin import (
     langevin,
@@ -47,6 +45,7 @@ from microball_ros.core.friction.laws import (
     Viscous,
 )
 from microball_ros.core.friction.simulation import check_samples, integrate_rk4, simulate_slider
+from microball_ros.core.friction.two_slope import TwoSlopeResult, fit_two_slope
 from microball_ros.core.friction.validation import ValidationResult, fit_sinusoid, validate
 
 __all__ = [
