@@ -13,14 +13,19 @@ import pytest
 
 from microball_ros.app import analysis
 from microball_ros.cli import main
-from microball_ros.core import friction
+from microball_ros.core import bench, friction
+from microball_ros.core.errors import FitError
+from microball_ros.core.friction import comparison as comparison_module
 from microball_ros.core.records import PositionRecord
+from microball_ros.io.positions_csv import read_positions_csv, write_positions_csv
 
 CONTRACT_KEYS = {'sample_period', 'fundamental_frequency', 'phase_difference',
                  'phase_uncertainty', 'memoryless', 'model', 'validation'}
 MODEL_KEYS = {'name', 'A', 'alpha', 'A_ci95', 'alpha_ci95', 'rmse'}
 VALIDATION_KEYS = {'slider_amplitude_simulated', 'slider_amplitude_measured', 'phase_simulated',
                    'phase_measured'}
+COMPARISON_KEYS = {'name', 'ok', 'error', 'aic', 'rmse', 'params'}
+STATIC_LAW_NAMES = {'langevin', 'viscous', 'coulomb', 'coulomb_viscous', 'stribeck'}
 
 
 def _run(*argv):
@@ -42,6 +47,23 @@ def _analysis(tmp_path_factory, scenario, *extra):
 @pytest.fixture(scope='module')
 def paper(tmp_path_factory):
     return _analysis(tmp_path_factory, 'paper')
+
+
+def _assert_comparison_complete(comparison):
+    """Every static law once; each fitted with a finite AIC, or not fitted with its reason."""
+    assert {entry['name'] for entry in comparison} == STATIC_LAW_NAMES
+    assert len(comparison) == len(STATIC_LAW_NAMES)
+    for entry in comparison:
+        assert COMPARISON_KEYS <= set(entry)
+        if entry['ok'] is True:
+            assert math.isfinite(entry['aic']) and entry['rmse'] > 0 and entry['error'] is None
+            assert entry['params'] and all(value > 0 for value in entry['params'].values())
+        else:
+            assert entry['ok'] is False and entry['aic'] is None and entry['rmse'] is None
+            assert isinstance(entry['error'], str) and entry['error'].strip()
+            assert '\n' not in entry['error']
+    fitted = [entry['aic'] for entry in comparison if entry['ok']]
+    assert fitted == sorted(fitted)
 
 
 def _inside(value, interval):
@@ -69,6 +91,9 @@ def test_paper_scenario_is_memoryless_with_the_true_slope_inside_its_intervals(p
     assert validation['slider_amplitude_simulated'] == pytest.approx(
         validation['slider_amplitude_measured'], rel=0.02)
     assert validation['phase_simulated'] == pytest.approx(validation['phase_measured'], abs=0.03)
+    _assert_comparison_complete(result['comparison'])
+    langevin = next(entry for entry in result['comparison'] if entry['name'] == 'langevin')
+    assert langevin['ok'] and langevin['params'] == {'A': model['A'], 'alpha': model['alpha']}
 
 
 def test_report_writes_estimates_and_figures(paper, tmp_path):
@@ -139,6 +164,73 @@ def test_forward_differences_show_the_papers_spurious_phase(paper, tmp_path):
     omega_dt = 2 * math.pi * 2.95 / 30
     assert result['phase_difference'] == pytest.approx(math.pi - omega_dt / 2, abs=0.02)
     assert result['memoryless'] is False
+    # The spurious loop once made the Stribeck comparison fit overflow and end the analysis.
+    _assert_comparison_complete(result['comparison'])
+
+
+@pytest.fixture(scope='module')
+def noisy_csv(tmp_path_factory):
+    """Write a paper-scenario record with 10 um position noise (5x the scenario's), 40 s."""
+    path = tmp_path_factory.mktemp('noisy') / 'positions.csv'
+    record = bench.simulate(bench.get_scenario('paper', noise_std=10e-6, seed=2), 40.0)
+    columns = {name: column for name, column in record.to_columns().items()
+               if not name.startswith('true_')}
+    write_positions_csv(str(path), columns)
+    return str(path)
+
+
+@pytest.mark.parametrize('method', ['three-stage', 'forward'])
+def test_a_noisy_record_is_analysed_with_every_comparison_law_accounted_for(noisy_csv, method,
+                                                                            tmp_path):
+    json_path = tmp_path / 'noisy.json'
+    assert main(['analyze', noisy_csv, '--method', method, '--json', str(json_path)]) == 0
+    result = json.loads(json_path.read_text())
+    _assert_comparison_complete(result['comparison'])
+    # The noise spreads the fit, not the low-velocity slope A alpha / 3 = 44 1/s (forward
+    # differences shrink it by their amplitude factors, about 8 %).
+    assert result['model']['low_velocity_slope'] == pytest.approx(44.0, rel=0.12)
+
+
+def test_a_comparison_law_that_fails_is_reported_and_the_analysis_goes_on(paper, tmp_path,
+                                                                         monkeypatch, capsys):
+    folder, reference = paper
+    real_fit = comparison_module.fit_least_squares
+
+    def failing_stribeck(v, a, law='langevin', **options):
+        if law == 'stribeck':
+            raise FitError('stribeck: no convergence (simulated)')
+        return real_fit(v, a, law, **options)
+
+    monkeypatch.setattr(comparison_module, 'fit_least_squares', failing_stribeck)
+    json_path, report = tmp_path / 'analysis.json', tmp_path / 'report'
+    assert main(['analyze', str(folder / 'positions.csv'), '--json', str(json_path),
+                 '--report', str(report)]) == 0
+    printed = capsys.readouterr().out
+    assert 'stribeck not fitted: stribeck: no convergence (simulated)' in printed
+    result = json.loads(json_path.read_text())
+    assert result['model'] == reference['model']
+    _assert_comparison_complete(result['comparison'])
+    failed = [entry for entry in result['comparison'] if not entry['ok']]
+    assert [entry['name'] for entry in failed] == ['stribeck']
+    assert failed[0]['error'] == 'stribeck: no convergence (simulated)'
+    assert result['comparison'][-1]['name'] == 'stribeck'
+    summary = (report / 'summary.txt').read_text()
+    assert 'stribeck not fitted: stribeck: no convergence (simulated)' in summary
+    assert (report / 'model.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_a_langevin_fit_that_fails_is_a_one_line_error(paper, monkeypatch, capsys):
+    folder, _ = paper
+    real_fit = comparison_module.fit_least_squares
+
+    def failing_langevin(v, a, law='langevin', **options):
+        if law == 'langevin':
+            raise FitError('langevin: no convergence (simulated)')
+        return real_fit(v, a, law, **options)
+
+    monkeypatch.setattr(comparison_module, 'fit_least_squares', failing_langevin)
+    with pytest.raises(FitError, match='Langevin model cannot be fitted: langevin: no conv'):
+        analysis.analyze_record(read_positions_csv(str(folder / 'positions.csv')))
 
 
 def _csv(tmp_path, header, rows):

@@ -12,6 +12,7 @@ import os
 import numpy as np
 
 from microball_ros.core import estimation, friction
+from microball_ros.core.errors import FitError
 from microball_ros.core.records import PositionRecord, RecordError
 from microball_ros.io.positions_csv import read_positions_csv
 
@@ -41,7 +42,7 @@ class AnalysisResult:
     estimate: estimation.Estimate
     memory: estimation.MemoryTest
     fit: friction.FitResult
-    comparison: tuple
+    comparison: tuple  # friction.LawComparison per static law: fitted by AIC, then failed
     validation: friction.ValidationResult
 
     def to_json(self):
@@ -78,9 +79,7 @@ class AnalysisResult:
                 'sample_count': self.fit.n,
                 'fit_epsilon': self.fit_epsilon,
             },
-            'comparison': [{'name': fit.name, 'params': dict(fit.params), 'rmse': fit.rmse,
-                            'ci95': {name: _interval(b) for name, b in fit.ci95.items()},
-                            'aic': fit.aic, 'bic': fit.bic} for fit in self.comparison],
+            'comparison': [_comparison_entry(entry) for entry in self.comparison],
             'validation': {
                 'periods': min(VALIDATION_PERIODS, len(self.window.time) * self.sample_period
                                * self.fundamental_frequency),
@@ -90,6 +89,16 @@ class AnalysisResult:
                 'phase_measured': self.validation.phase_measured,
             },
         }
+
+
+def _comparison_entry(entry):
+    """Return one law of the comparison as JSON: ok and error, and null numbers if it failed."""
+    if not entry.ok:
+        return {'name': entry.name, 'ok': False, 'error': entry.error, 'aic': None, 'bic': None,
+                'rmse': None, 'params': None, 'ci95': None}
+    return {'name': entry.name, 'ok': True, 'error': None, 'aic': entry.aic, 'bic': entry.bic,
+            'rmse': entry.rmse, 'params': entry.params,
+            'ci95': {name: _interval(b) for name, b in entry.ci95.items()}}
 
 
 def _finite_or_none(value):
@@ -219,6 +228,9 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
                    exposure=0.0, source='record'):
     """Run the whole analysis on a record; raise RecordError on data that cannot be analysed.
 
+    FitError if the Langevin law cannot be fitted; another static law that cannot be fitted
+    shows as a failed entry of ``comparison`` and does not stop the analysis.
+
     The derivatives, the figures and the memory test use ``method`` (and ``epsilon`` for the
     three-stage method). The friction model of the three-stage method is fitted to the
     velocity at ``epsilon`` and the acceleration at ``fit_epsilon``, 0 by default (nothing
@@ -254,8 +266,13 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
         fitted = estimation.estimate_relative(time, stator, slider, method,
                                               **{**options, 'epsilon': fit_epsilon},
                                               fundamental=frequency)
+    # The other static laws are auxiliary: one that cannot be fitted is recorded in the
+    # comparison (ok false, its error), never raised. The Langevin law is the result.
     comparison = tuple(friction.compare_laws(est.velocity, fitted.acceleration))
-    fit = next(law_fit for law_fit in comparison if law_fit.name == 'langevin')
+    langevin = next(entry for entry in comparison if entry.name == 'langevin')
+    if not langevin.ok:
+        raise FitError(f'{source}: the Langevin model cannot be fitted: {langevin.error}')
+    fit = langevin.fit
     validation = friction.validate(fit.law, time, stator, slider, frequency,
                                    max_periods=VALIDATION_PERIODS)
     return AnalysisResult(
@@ -275,7 +292,7 @@ def summary_lines(result):
         return '[' + ', '.join('inf' if b is None else f'{b:.4g}' for b in bounds) + ']'
 
     verdict = 'memoryless' if result.memory.memoryless else 'HYSTERETIC (friction has memory)'
-    return [
+    lines = [
         f'method {result.method}, sample period {result.sample_period * 1e3:.2f} ms, '
         f'fundamental {result.fundamental_frequency:.4f} Hz, '
         f'{len(result.window.time)} samples used ({result.samples_invalid} invalid)',
@@ -285,9 +302,16 @@ def summary_lines(result):
         f"alpha = {model['alpha']:.4g} s/m {interval(model['alpha_ci95'])}, "
         f"corr {model['A_alpha_correlation']:+.3f}, rmse {model['rmse']:.3g} m/s^2",
         f"low-velocity slope A alpha / 3 = {model['low_velocity_slope']:.4g} 1/s; "
-        f'best static law by AIC: {result.comparison[0].name}',
+        f'best static law by AIC: {result.comparison[0].name}',  # fitted laws come first
         f'validation (Fig. 9): slider amplitude {validation.slider_amplitude_simulated * 1e3:.4f}'
         f' mm simulated vs {validation.slider_amplitude_measured * 1e3:.4f} mm measured, '
         f'slider-stator phase {validation.phase_simulated:.3f} vs '
         f'{validation.phase_measured:.3f} rad',
     ]
+    return lines + comparison_failures(result)
+
+
+def comparison_failures(result):
+    """Return one line per static law of the comparison that could not be fitted."""
+    return [f'comparison: {entry.name} not fitted: {entry.error}'
+            for entry in result.comparison if not entry.ok]

@@ -1,12 +1,15 @@
-"""Figures and estimates.csv of ``microball analyze --report DIR`` (like the paper's Fig. 4-9).
+"""Figures, estimates.csv and summary.txt of ``microball analyze --report DIR`` (Fig. 4-9).
 
 matplotlib with the Agg backend: no display needed. Each figure is drawn from an
-AnalysisResult and its analysed window; nothing here changes a number.
+AnalysisResult and its analysed window; nothing here changes a number. The model figure and
+summary.txt also list the static-law comparison, naming any law that could not be fitted and
+why.
 """
 
 import csv
 import math
 import os
+import textwrap
 
 import matplotlib
 
@@ -14,6 +17,7 @@ matplotlib.use('Agg')
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from microball_ros.app.analysis import summary_lines  # noqa: E402
 from microball_ros.core import estimation  # noqa: E402
 
 COMPARED_METHODS = ('forward', 'lowpass-forward', 'three-stage')
@@ -101,9 +105,24 @@ def figure_model(result, path):
     ax.set_xlabel('relative velocity (mm/s)')
     ax.set_ylabel('friction per unit mass, -a_slider (m/s$^2$)')
     ax.set_title(f'Friction model (rmse {fit.rmse:.3g} m/s$^2$, {fit.n} samples)')
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc='upper left')
+    ax.text(0.98, 0.02, '\n'.join(comparison_lines(result)), transform=ax.transAxes,
+            ha='right', va='bottom', fontsize=7, family='monospace',
+            bbox={'facecolor': 'white', 'alpha': 0.8, 'edgecolor': '0.8'})
     ax.grid(alpha=0.3)
     _save(fig, path)
+
+
+def comparison_lines(result, width=70):
+    """Return the static-law comparison as short lines: AIC ranking, then each failed law."""
+    lines = ['static laws by AIC:']
+    for entry in result.comparison:
+        if entry.ok:
+            lines.append(f'  {entry.name:<16} AIC {entry.aic:10.1f}  rmse {entry.rmse:.3g}')
+        else:
+            lines.extend(textwrap.wrap(f'{entry.name} not fitted: {entry.error}', width,
+                                       initial_indent='  ', subsequent_indent='    '))
+    return lines
 
 
 def figure_compensation(result, path):
@@ -146,11 +165,19 @@ def _save(fig, path):
     plt.close(fig)
 
 
+def write_summary(path, result):
+    """Write the printed summary of ``microball analyze`` and the static-law comparison."""
+    with open(path, 'w') as handle:
+        handle.write('\n'.join([*summary_lines(result), *comparison_lines(result, width=99)]))
+        handle.write('\n')
+
+
 def write_report(result, directory):
-    """Write estimates.csv and the figures into directory; return the written paths."""
+    """Write estimates.csv, summary.txt and the figures into directory; return the paths."""
     os.makedirs(directory, exist_ok=True)
-    paths = [os.path.join(directory, 'estimates.csv')]
+    paths = [os.path.join(directory, 'estimates.csv'), os.path.join(directory, 'summary.txt')]
     write_estimates_csv(paths[0], result.estimate)
+    write_summary(paths[1], result)
     for name, draw in (('positions.png', figure_positions), ('methods.png', figure_methods),
                        ('model.png', figure_model), ('compensation.png', figure_compensation)):
         path = os.path.join(directory, name)
