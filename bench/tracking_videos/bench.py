@@ -16,6 +16,8 @@ per mark with --per-mark):
                frame's ROI, high-passed and Hanning-windowed); both told the first frame's truth
   track fps    the tracker's core on frames decoded into memory first (one thread)
   decode fps   decoding the case's video (or PNG folder) to gray arrays
+               (both per second of this process's CPU time, so that other jobs on a shared
+               machine do not count; with one thread that is frames/s on one core)
 
 The tracker runs as users run it: ``microball track`` with default options. The frames/s
 measure calls ``microball_ros.core.tracking.track`` as the CLI does (``tracker_core`` below).
@@ -98,7 +100,7 @@ def read_csv(path):
 
 def decode(folder, info):
     """All frames as gray arrays, and the decoding rate (frames/s)."""
-    start = time.perf_counter()
+    start = time.process_time()
     path = os.path.join(folder, info['video'])
     frames = []
     if os.path.isdir(path):
@@ -112,7 +114,7 @@ def decode(folder, info):
                 break
             frames.append(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY))
         capture.release()
-    return frames, len(frames) / (time.perf_counter() - start)
+    return frames, len(frames) / (time.process_time() - start)
 
 
 def _parabola(values, i):
@@ -190,9 +192,9 @@ def bench_case(folder, per_mark):
     frames, decode_fps = decode(folder, info)
     cv2.setNumThreads(1)
     load_tracker()
-    start = time.perf_counter()
+    start = time.process_time()
     tracker_core(frames, info)
-    track_fps = len(frames) / (time.perf_counter() - start)
+    track_fps = len(frames) / (time.process_time() - start)
     groups = [[n] for n in NAMES] if per_mark else [list(NAMES)]
     rows = []
     for group in groups:
