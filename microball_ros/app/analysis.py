@@ -12,6 +12,7 @@ import os
 import numpy as np
 
 from microball_ros.core import estimation, friction
+from microball_ros.core import memory as memory_test
 from microball_ros.core.errors import FitError
 from microball_ros.core.records import PositionRecord, RecordError
 from microball_ros.io.positions_csv import read_positions_csv
@@ -40,7 +41,7 @@ class AnalysisResult:
     window: PositionRecord  # the analysed stretch: the longest run of valid samples
     samples_invalid: int
     estimate: estimation.Estimate
-    memory: estimation.MemoryTest
+    memory: memory_test.MemoryTest
     fit: friction.FitResult
     comparison: tuple  # friction.LawComparison per static law: fitted by AIC, then failed
     validation: friction.ValidationResult
@@ -259,7 +260,7 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, f
         frequency = _check_oscillation(window.time, window.stator_position, dt, source)
     time, stator, slider = window.time, window.stator_position, window.slider_position
     options = {'epsilon': epsilon, 'exposure': exposure} if method == 'three-stage' else {}
-    est, memory = estimation.relative_memory_test(time, stator, slider, method,
+    est, memory = memory_test.relative_memory_test(time, stator, slider, method,
                                                   frequency=frequency, **options)
     fitted = est
     if method == 'three-stage' and fit_epsilon != epsilon:

@@ -18,7 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from microball_ros.app.analysis import summary_lines  # noqa: E402
-from microball_ros.core import estimation  # noqa: E402
+from microball_ros.core import estimation, memory  # noqa: E402
 
 COMPARED_METHODS = ('forward', 'lowpass-forward', 'three-stage')
 
@@ -78,7 +78,7 @@ def figure_methods(result, path):
     window, frequency = result.window, result.fundamental_frequency
     for ax, method in zip(axes, COMPARED_METHODS, strict=True):
         est = _relative_estimates(result, method)
-        test = estimation.memory_test(est.time, est.velocity, est.acceleration, frequency)
+        test = memory.memory_test(est.time, est.velocity, est.acceleration, frequency)
         # Skip the causal low-pass filter's start-up.
         shown = _first_periods(est.time, 6, frequency, skip=2)
         ax.plot(est.velocity[shown] * 1e3, est.acceleration[shown], '-', lw=0.8)

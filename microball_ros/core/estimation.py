@@ -402,16 +402,3 @@ def estimate_relative(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt.Ar
                     sample_period=dt, velocity_frequencies=relative.velocity_frequencies,
                     acceleration_frequencies=absolute.acceleration_frequencies,
                     options=relative.options)
-
-
-# The memory test moved to core.memory (it imports this module, so these resolve lazily).
-_MOVED_TO_MEMORY = ('MemoryTest', 'memory_test', 'relative_memory_test')
-
-
-def __getattr__(name: str) -> Any:
-    """Resolve a name that moved to microball_ros.core.memory (old import path, still working)."""
-    if name in _MOVED_TO_MEMORY:
-        from microball_ros.core import memory
-
-        return getattr(memory, name)
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
