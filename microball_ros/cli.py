@@ -9,6 +9,7 @@ import argparse
 import json
 import os
 import sys
+import threading
 
 from microball_ros.core.errors import InputError, MicroballError
 
@@ -45,8 +46,57 @@ def _fraction(text):
     return value
 
 
-def _progress(message):
-    print(message, file=sys.stderr, flush=True)
+class _Progress:
+    """Progress lines on stderr, held back a moment so that none precedes a quick error.
+
+    A line is printed when the next one arrives, after HOLD seconds (a timer), or when the
+    command succeeds; when it fails, the pending line is dropped and the error is the only
+    line the user sees.
+    """
+
+    HOLD = 0.5
+
+    def __init__(self):
+        self._pending = None
+        self._timer = None
+        self._lock = threading.Lock()
+
+    def __call__(self, message):
+        """Show a progress line (after the previous one, if it is still pending)."""
+        with self._lock:
+            self._flush_locked()
+            self._pending = message
+            self._timer = threading.Timer(self.HOLD, self.flush)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _flush_locked(self):
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._pending is not None:
+            print(self._pending, file=sys.stderr, flush=True)
+            self._pending = None
+
+    def flush(self):
+        """Print the pending line now."""
+        with self._lock:
+            self._flush_locked()
+
+    def drop(self):
+        """Forget the pending line (the command failed: its error says what happened)."""
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+            self._pending = self._timer = None
+
+
+_progress = _Progress()
+
+# Work that would not fit in memory is refused before it starts (bytes of the arrays kept).
+MAX_SIMULATED_SAMPLES = 10_000_000   # simulate: about 1 GB of columns (92 h at 30 fps)
+MAX_RENDERED_BYTES = 4 * 1024 ** 3   # render keeps every frame in memory
+VIDEO_SUFFIXES = ('.mkv', '.avi')
 
 
 def cmd_simulate(args):
@@ -56,6 +106,12 @@ def cmd_simulate(args):
 
     scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
                                                     if args.seed is not None else {}))
+    samples = args.duration * scenario.frame_rate
+    if samples > MAX_SIMULATED_SAMPLES:
+        raise CliError(f'--duration {args.duration:g} s is {samples:.3g} samples at '
+                       f'{scenario.frame_rate:g} fps, more than {MAX_SIMULATED_SAMPLES:,} '
+                       f'({MAX_SIMULATED_SAMPLES / scenario.frame_rate / 3600:.0f} h) fit in '
+                       'memory; simulate shorter records')
     _progress(f'simulating {args.duration:g} s of scenario {args.scenario!r} ...')
     record = bench.simulate(scenario, args.duration)
     columns = record.to_columns()
@@ -114,7 +170,7 @@ def _roi(text):
 
 def _track_progress(done, total):
     of = f' of {total}' if total else ''
-    print(f'tracked {done}{of} frames', file=sys.stderr, flush=True)
+    _progress(f'tracked {done}{of} frames')
 
 
 def _frame_tracking_arguments(parser):
@@ -162,6 +218,16 @@ def cmd_render(args):
 
     scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
                                                     if args.seed is not None else {}))
+    if not args.output.lower().endswith(VIDEO_SUFFIXES):
+        raise CliError(f'{args.output}: a video file name must end in '
+                       f'{" or ".join(VIDEO_SUFFIXES)}')
+    config = rig.camera_for(scenario)
+    frames = args.duration * config.fps
+    size = frames * config.width * config.height
+    if size > MAX_RENDERED_BYTES:
+        raise CliError(f'--duration {args.duration:g} s is {frames:.0f} frames '
+                       f'({size / 1024 ** 3:.1f} GiB in memory); render at most '
+                       f'{MAX_RENDERED_BYTES / (config.fps * config.width * config.height):.0f} s')
     _progress(f'rendering {args.duration:g} s of scenario {args.scenario!r} ...')
     rendered, _ = rig.render_bench(scenario, args.duration)
     codec = video.LOSSLESS_CODEC if args.lossless else video.LOSSY_CODEC
@@ -195,9 +261,14 @@ def cmd_experiment(args):
         monitor = run_experiment(args.scenario, args.duration, args.speed, progress=_progress,
                                  output=args.output, domain_id=args.domain_id)
     except NodeCrashed as error:
+        _progress.flush()
         print(f'microball experiment: {error}', file=sys.stderr)
         return 1
-    for line in summary_lines(monitor, args.scenario):
+    lines = summary_lines(monitor, args.scenario)
+    if not monitor.windows or not monitor.models:
+        raise CliError(f'{lines[0]}' + (f' (the bag {args.output} was recorded)'
+                                        if args.output else ''))
+    for line in lines:
         print(line)
     if args.output:
         print(f'recorded every topic into {args.output}')
@@ -335,6 +406,7 @@ def cmd_reprocess(args):
         counts = reprocess(args.bag, args.output, progress=_progress,
                            tracking=_frame_tracking(args))
     except NodeCrashed as error:
+        _progress.flush()
         print(f'microball reprocess: {error}', file=sys.stderr)
         return 1
     for topic in sorted(counts):
@@ -369,6 +441,8 @@ def cmd_reindex(args):
 
 def build_parser():
     """Build the argument parser of every sub-command."""
+    from microball_ros.core.bench import scenario_names
+
     parser = _Parser(
         prog='microball',
         description='Measure and model dynamic friction in MEMS microball bearings '
@@ -380,7 +454,7 @@ def build_parser():
         'simulate', help='positions from the bench model, no camera',
         description='Simulate the crank-slider rig and write stator and slider positions.')
     simulate.add_argument('--scenario', default='paper',
-                          help='scenario preset (default: paper; see --list-scenarios)')
+                          help=f'scenario preset: {", ".join(scenario_names())} (default: paper)')
     simulate.add_argument('--duration', type=_positive_float, default=20.0,
                           help='seconds of steady oscillation to record (default: 20)')
     simulate.add_argument('--output', required=True, help='position CSV to write')
@@ -550,14 +624,19 @@ def main(argv=None):
     try:
         return args.func(args)
     except MicroballError as error:
+        _progress.drop()
         return _refuse(args.command, str(error))
     except OSError as error:
         if error.filename is None:  # not about a file the user named: a bug
             raise
+        _progress.drop()
         return _refuse(args.command, f'{error.filename}: {error.strerror or error}')
     except KeyboardInterrupt:
+        _progress.drop()
         print(f'microball {args.command}: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        _progress.flush()
 
 
 if __name__ == '__main__':
