@@ -111,6 +111,10 @@ class NodeProcesses:
         """Raise NodeCrashed naming the first node that has exited."""
         for name, (proc, _) in self.procs.items():
             code = proc.poll()
+            if code is not None and code < 0:  # killed from outside: its log is not the cause
+                raise NodeCrashed(f'node {name} exited with code {code} (killed by '
+                                  f'{signal.Signals(-code).name}); its log: '
+                                  f'{os.path.join(self.log_dir, name + ".log")}')
             if code is not None:
                 raise NodeCrashed(f'node {name} exited with code {code}: {self.last_line(name)}')
 
@@ -191,8 +195,9 @@ class _Monitor:
 
     def progress(self, fps):
         """Return a one-line progress report."""
-        line = (f'simulated {self.frames / fps:5.1f} s: {self.frames} frames, '
-                f'{self.tracked} tracked, {len(self.windows)} windows')
+        windows = len(self.windows)
+        line = (f'simulated {self.frames / fps:5.1f} s: {self.tracked} frames tracked, '
+                f'{windows} window{"" if windows == 1 else "s"}')
         if self.models:
             model = self.models[-1]
             line += f', model A = {model.a:.3g} m/s^2, alpha = {model.alpha:.3g} s/m'
