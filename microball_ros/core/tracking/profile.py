@@ -87,9 +87,9 @@ def relative_deficit(profile: np.ndarray, baseline: np.ndarray, polarity: str) -
     return profile / baseline - 1.0
 
 
-def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
-                         polarity: str) -> np.ndarray | None:
-    """Return the ROI's rows averaged with weights proportional to the mark's depth in each.
+def row_weights(region: np.ndarray, lo: int, hi: int, pad: int,
+                polarity: str) -> np.ndarray | None:
+    """Return weights per ROI row proportional to the mark's depth in it (sum 1), or None.
 
     The depth of a row is its mean over the mark (columns ``lo - pad`` .. ``hi + pad``)
     against its mean over flanks on both sides; None if there are no flanks or no depth.
@@ -108,7 +108,19 @@ def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
     total = float(depth.sum())
     if total <= 0:
         return None
-    return (depth / total) @ region.astype(np.float64)
+    return depth / total
+
+
+def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
+                         polarity: str) -> np.ndarray | None:
+    """Return the ROI's rows averaged with weights proportional to the mark's depth in each.
+
+    The weights are ``row_weights``; None if there are none.
+    """
+    weights = row_weights(region, lo, hi, pad, polarity)
+    if weights is None:
+        return None
+    return weights @ region.astype(np.float64)
 
 
 def deficit_noise(deficit: np.ndarray, keep: np.ndarray) -> float:
