@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from microball_ros.core.errors import InputError
 
-METHODS = ('auto', 'centroid', 'symmetric')
+METHODS = ('auto', 'centroid', 'symmetric', 'template')
 POLARITIES = ('auto', 'dark', 'bright')
 
 
@@ -19,8 +19,10 @@ class TrackerConfig:
     """Tracker tuning; the defaults suit any mark that stands out from its plate.
 
     ``method``: 'auto' (centroid, or symmetry when the mark is nearly still), 'centroid' (exact
-    for any mark shape, noisier) or 'symmetric' (marks symmetric along x, still or uniformly
-    moving only). Lengths in px; ``threshold`` is the fraction of the peak deficit that
+    for any mark shape, noisier), 'symmetric' (marks symmetric along x, still or uniformly
+    moving only) or 'template' (a template of any shape learned from the video, fitted with
+    the motion blur, gated by a motion prediction, a static background removed: for textured
+    plates; experimental, slower). Lengths in px; ``threshold`` is the fraction of the peak deficit that
     delimits the mark; ``still_motion_px`` is the frame-to-frame motion below which 'auto' uses
     symmetry (blending to the centroid at three times that) in the first detection.
     ``polarity``: 'auto' (learned from the first frame the mark is found in), 'dark' or

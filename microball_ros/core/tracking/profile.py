@@ -80,6 +80,24 @@ class Baseline:
         return baseline
 
 
+def polarity_of(profile: np.ndarray, min_skew: float = 0.5) -> str | None:
+    """Return 'dark' or 'bright': the sign of the mark in a profile, or None if unclear.
+
+    A mark is a minority of the columns that stands out from a smooth plate: the skewness of
+    the profile's departure from a quadratic fitted to all its columns is negative for a dark
+    mark, positive for a bright one; None when its magnitude is below ``min_skew``.
+    """
+    u = np.linspace(-1.0, 1.0, profile.size)
+    residual = profile - np.polyval(np.polyfit(u, profile, 2), u)
+    spread = float(np.std(residual))
+    if spread <= 0:
+        return None
+    skew = float(np.mean(residual ** 3)) / spread ** 3
+    if abs(skew) < min_skew:
+        return None
+    return 'dark' if skew < 0 else 'bright'
+
+
 def relative_deficit(profile: np.ndarray, baseline: np.ndarray, polarity: str) -> np.ndarray:
     """Return the mark's relative deficit: ``1 - profile / baseline`` for dark marks."""
     if polarity == 'dark':

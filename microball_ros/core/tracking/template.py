@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-SEGMENTS = 8
+SEGMENTS = 6
 
 
 class Fit(NamedTuple):
@@ -40,14 +40,19 @@ class Fit(NamedTuple):
     count: int
 
 
+_U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
+_U2 = _U * _U - 1.0 / 12.0
+
+
 def kernel_spectrum(k: np.ndarray, blur: float, curve: float) -> np.ndarray:
     """Return the spectrum of the zero-mean motion kernel (blur L, curvature Q, px) at ``k``."""
-    u = np.linspace(-0.5, 0.5, SEGMENTS + 1)
-    d = blur * u + curve * (u * u - 1.0 / 12.0)
+    d = blur * _U + curve * _U2
     mid, width = (d[1:] + d[:-1]) / 2.0, d[1:] - d[:-1]
     mid = mid - mid.mean()
-    return (np.exp(-1j * np.outer(mid, k)) * np.sinc(np.outer(width, k) / (2 * np.pi))).mean(
-        axis=0)
+    half = np.outer(width / 2.0, k)
+    safe = np.where(half == 0.0, 1.0, half)
+    sinc = np.where(half == 0.0, 1.0, np.sin(safe) / safe)
+    return (np.exp(-1j * np.outer(mid, k)) * sinc).mean(axis=0)
 
 
 def tukey(size: int, center: float, half: float, ramp: float) -> np.ndarray:
@@ -102,12 +107,7 @@ class MarkTemplate:
         self.values = values
         self.spectrum = np.fft.rfft(values)
 
-    def half_width(self, fraction: float) -> float:
-        """Return the half-width (px) of the template's main lobe, above fraction x its peak.
-
-        The lobe is the contiguous run around the strongest value near the origin where the
-        smoothed magnitude exceeds ``fraction`` of that value.
-        """
+    def _lobe(self, fraction):
         magnitude = np.convolve(np.abs(self.values), np.full(5, 0.2), mode='same')
         reach = int(self.support)
         near = magnitude[self.center - reach:self.center + reach + 1]
@@ -118,6 +118,33 @@ class MarkTemplate:
         right = np.flatnonzero(below[peak_index + 1:])
         lo = int(left[-1]) + 1 if left.size else 0
         hi = peak_index + int(right[0]) if right.size else self.size - 1
+        return lo, hi
+
+    def recenter(self, sign: float, fraction: float = 0.05) -> float:
+        """Move the origin to the centroid of the signed main lobe; return the shift (px).
+
+        The mark's position is then the centroid of its contrast (its centre for a symmetric
+        mark), whatever frames the template was learned from.
+        """
+        lo, hi = self._lobe(fraction)
+        lo, hi = max(lo - 2, 0), min(hi + 2, self.size - 1)
+        weight = np.clip(sign * self.values[lo:hi + 1], 0.0, None)
+        if weight.sum() <= 0:
+            return 0.0
+        shift = float(weight @ np.arange(lo, hi + 1)) / float(weight.sum()) - self.center
+        phase = np.exp(1j * self.k * shift)
+        self._num = self._num * phase
+        self.spectrum = self.spectrum * phase
+        self.values = np.fft.irfft(self.spectrum, self.size)
+        return shift
+
+    def half_width(self, fraction: float) -> float:
+        """Return the half-width (px) of the template's main lobe, above fraction x its peak.
+
+        The lobe is the contiguous run around the strongest value near the origin where the
+        smoothed magnitude exceeds ``fraction`` of that value.
+        """
+        lo, hi = self._lobe(fraction)
         return float(max(self.center - lo, hi - self.center))
 
     def model(self, delta: float, blur: float, curve: float) -> tuple[np.ndarray, np.ndarray]:
@@ -155,21 +182,20 @@ class MarkTemplate:
         return float(residual @ residual), jacobian, residual, float(gain), float(offset)
 
     def fit(self, window: np.ndarray, valid: np.ndarray, delta: float, blur: float,
-            curve: float, half: float, iterations: int = 15) -> Fit | None:
+            curve: float, half: float, iterations: int = 10) -> Fit | None:
         """Fit shift, blur and curvature to a grid-aligned window; None if it fails.
 
         The fit uses the valid columns within ``half`` + the blur of the mark; ``delta`` is
         the starting shift, ``blur`` and ``curve`` the starting kernel (Levenberg-Marquardt).
         """
         grid = np.arange(self.size) - self.center
-        bank = sorted({abs(blur), 1.0, 6.0, 16.0, 32.0, 56.0, 88.0})
-        wide = valid & (np.abs(grid - delta) <= half + 0.5 * bank[-1] + abs(curve) / 6.0)
-        if np.count_nonzero(wide) < 12:
-            return None
-        costs = [self._cost(window, wide, (delta, b, c)) for b in bank
-                 for c in ((curve, 0.0) if curve else (0.0,))]
-        choices = [(b, c) for b in bank for c in ((curve, 0.0) if curve else (0.0,))]
-        blur, curve = choices[int(np.argmin(costs))]
+        if curve:  # the predicted curvature, or none: the better start
+            reach = half + 0.5 * abs(blur) + abs(curve) / 6.0
+            wide = valid & (np.abs(grid - delta) <= reach)
+            if np.count_nonzero(wide) >= 12 and self._cost(
+                    window, wide, (delta, blur, 0.0)) < self._cost(window, wide,
+                                                                   (delta, blur, curve)):
+                curve = 0.0
         for attempt in range(2):
             reach = half + 0.5 * abs(blur) + abs(curve) / 6.0
             used = valid & (np.abs(grid - delta) <= reach)
@@ -191,7 +217,7 @@ class MarkTemplate:
                 if trial[0] <= cost:
                     state, best = candidate, trial
                     damping = max(damping / 10.0, 1e-7)
-                    if abs(step[2]) < 1e-5 and abs(step[3]) < 1e-3 and abs(step[4]) < 1e-3:
+                    if abs(step[2]) < 2e-4 and abs(step[3]) < 0.02 and abs(step[4]) < 0.05:
                         break
                 else:
                     damping *= 10.0
