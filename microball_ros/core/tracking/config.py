@@ -22,7 +22,8 @@ class TrackerConfig:
     for any mark shape, noisier), 'symmetric' (marks symmetric along x, still or uniformly
     moving only) or 'template' (a template of any shape learned from the video, fitted with
     the motion blur, gated by a motion prediction, a static background removed: for textured
-    plates; experimental, slower). Lengths in px; ``threshold`` is the fraction of the peak deficit that
+    plates; experimental, slower). Lengths in px; ``threshold`` is the fraction of the peak
+    deficit that
     delimits the mark; ``still_motion_px`` is the frame-to-frame motion below which 'auto' uses
     symmetry (blending to the centroid at three times that) in the first detection.
     ``polarity``: 'auto' (learned from the first frame the mark is found in), 'dark' or

@@ -1,6 +1,7 @@
 """One mark by a learned template (method 'template'): detect, learn, predict, search, fit.
 
-Owns LearnedMarkTracker, the stateful tracking of one mark by its learned model. The first frame in which the
+Owns LearnedMarkTracker, the stateful tracking of one mark by its learned model. The first
+frame in which the
 mark is found (core.tracking.detect, both polarities when 'auto') fixes its polarity, the row
 weights (a matched filter across rows) and a first template (core.tracking.template). From then
 on, per frame:

@@ -196,7 +196,7 @@ class MarkTemplate:
                     window, wide, (delta, blur, 0.0)) < self._cost(window, wide,
                                                                    (delta, blur, curve)):
                 curve = 0.0
-        for attempt in range(2):
+        for _ in range(2):
             reach = half + 0.5 * abs(blur) + abs(curve) / 6.0
             used = valid & (np.abs(grid - delta) <= reach)
             if np.count_nonzero(used) < 12:

@@ -144,4 +144,5 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         sigma_px={n: np.array([r[n].sigma_px for r in rows]) for n in names},
         reason={n: [r[n].reason for r in rows] for n in names},
         meters_per_pixel=tracker.meters_per_pixel, fps=tracker.fps,
-        exposure=tracker.exposure, names=names)
+        exposure=tracker.exposure, names=names,
+        polarity={n: m.polarity for n, m in tracker.marks.items() if m.polarity})
