@@ -191,23 +191,52 @@ def _frame_tracking(args):
 
 
 def cmd_track(args):
-    """Track the slider and stator marks through a video and write the position CSV."""
-    from microball_ros.core.tracking import check_scale
+    """Track the slider and stator marks through a video and write the position CSV.
+
+    With --preview, track only the first frames and draw the last one with the ROIs, the
+    learned marks and the track (a check of the set-up before a long run).
+    """
+    import itertools
+
+    from microball_ros.core.tracking import TrackerConfig, check_scale, draw_tracking
     from microball_ros.io.positions_csv import write_positions_csv
-    from microball_ros.io.video import track_video as track
+    from microball_ros.io.video import FrameSource, track_video
 
     check_scale(args.meters_per_pixel)
     if not os.path.exists(args.video):
         raise CliError(f'{args.video}: no such file or folder')
-    result = track(args.video, {'slider': args.slider_roi, 'stator': args.stator_roi},
-                   args.meters_per_pixel, fps=args.fps, exposure=args.exposure,
-                   progress=_track_progress)
-    columns = result.to_columns()
-    write_positions_csv(args.output, columns)
-    lost = {name: int(sum(1 for v in columns[f'{name}_position'] if v != v))
-            for name in ('slider', 'stator')}
-    print(f"wrote {len(columns['time'])} frames to {args.output} "
-          f"(lost: slider {lost['slider']}, stator {lost['stator']})")
+    if args.preview_frames < 1:
+        raise CliError('--preview-frames must be at least 1')
+    if args.output is None and args.preview is None:
+        raise CliError('give --output FILE.csv (or --preview FILE.png)')
+    config = TrackerConfig(polarity=args.polarity, method=args.method)
+    rois = {'slider': args.slider_roi, 'stator': args.stator_roi}
+    source = FrameSource(args.video)
+    max_frames = args.preview_frames if args.preview and not args.output else None
+    result = track_video(source, rois, args.meters_per_pixel, fps=args.fps,
+                         exposure=args.exposure, progress=_track_progress, config=config,
+                         max_frames=max_frames)
+    if args.preview:
+        import cv2
+
+        last = len(result.time) - 1
+        frame = next(itertools.islice(iter(source), last, None))
+        image = draw_tracking(frame, rois,
+                              {n: result.position_px[n][last] for n in result.names},
+                              {n: result.position_px[n] for n in result.names},
+                              {n: result.polarity.get(n, '') for n in result.names})
+        if not cv2.imwrite(args.preview, image):
+            raise CliError(f'{args.preview}: cannot write the preview image')
+        print(f'wrote {args.preview} (frame {last}; polarity: '
+              f"slider {result.polarity.get('slider', '?')}, "
+              f"stator {result.polarity.get('stator', '?')})")
+    if args.output:
+        columns = result.to_columns()
+        write_positions_csv(args.output, columns)
+        lost = {name: int(sum(1 for v in columns[f'{name}_position'] if v != v))
+                for name in ('slider', 'stator')}
+        print(f"wrote {len(columns['time'])} frames to {args.output} "
+              f"(lost: slider {lost['slider']}, stator {lost['stator']})")
     return 0
 
 
@@ -588,7 +617,20 @@ def build_parser():
     track.add_argument('--exposure', type=_positive_float, default=None,
                        help='exposure time, s, for the mid-exposure stamps (default: half '
                             'the frame period)')
-    track.add_argument('--output', required=True, help='position CSV to write')
+    track.add_argument('--polarity', choices=['auto', 'dark', 'bright'], default='auto',
+                       help='marks darker or brighter than their plate (default: auto, '
+                            'learned from the video)')
+    track.add_argument('--method', choices=['auto', 'template'], default='auto',
+                       help="'auto': the mark's contrast centroid (default); 'template': a "
+                            'template learned from the video, for textured plates '
+                            '(experimental, slower)')
+    track.add_argument('--output', help='position CSV to write (time, positions, quality, '
+                                        'sigma)')
+    track.add_argument('--preview', metavar='FILE.png',
+                       help='draw ROIs, learned marks and track on a frame into this PNG; '
+                            'without --output only the first --preview-frames are tracked')
+    track.add_argument('--preview-frames', type=int, default=90, metavar='N',
+                       help='frames tracked for a preview without --output (default 90)')
     track.set_defaults(func=cmd_track)
 
     render = commands.add_parser(

@@ -211,7 +211,8 @@ def test_streaming_equals_batch_and_csv_has_empty_cells(tmp_path):
     path = tmp_path / 'tracked.csv'
     write_positions_csv(str(path), batch.to_columns())
     header = path.read_text().splitlines()[0]
-    assert header == 'time,stator_position,slider_position,slider_quality,stator_quality'
+    assert header == ('time,stator_position,slider_position,slider_quality,stator_quality,'
+                      'slider_sigma,stator_sigma')
     record = read_positions_csv(str(path))
     assert np.isnan(record.slider_position[3]) and np.isfinite(record.slider_position[2])
     np.testing.assert_allclose(record.stator_position, batch.position['stator'])

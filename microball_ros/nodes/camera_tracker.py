@@ -11,14 +11,19 @@ start of the exposure); a lost mark is published as invalid (NaN), never invente
 import math
 import sys
 
-import cv2
 from microball_msgs.msg import TrackedPositions
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
 from microball_ros.core.errors import InputError
-from microball_ros.core.tracking import Tracker, check_roi, check_scale
+from microball_ros.core.tracking import (
+    Tracker,
+    TrackerConfig,
+    check_roi,
+    check_scale,
+    draw_tracking,
+)
 from microball_ros.io import conversions
 from microball_ros.io.video import FrameSource
 from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
@@ -38,6 +43,8 @@ PARAMS = {
     'video_exposure': Param(0.0, 'exposure of video_path frames, s; 0 assumes half the frame '
                                  'period', 0.0, 1.0, read_only=True),
     'video_speed': Param(1.0, 'video playback speed factor', 0.01, 1000.0, read_only=True),
+    'polarity': Param('auto', "marks darker or brighter than their plate: 'auto' (learned), "
+                              "'dark' or 'bright'", read_only=True),
     'publish_debug_image': Param(False, 'publish tracking/debug_image with the marks drawn'),
     'frame_id': Param('camera', 'frame_id for positions from video_path', read_only=True),
     'wait_for_subscribers': Param(0, 'subscribe to the images only once tracking/positions has '
@@ -53,21 +60,15 @@ def check_parameters(values):
         check_roi(values['slider_roi'], name='slider')
         check_roi(values['stator_roi'], name='stator')
         check_scale(values['meters_per_pixel'])
+        TrackerConfig(polarity=values['polarity'])
     except ValueError as error:
         return str(error)
     return None
 
 
-def debug_image(frame, rois, positions_px):
-    """Return a BGR copy of frame with the ROIs (blue) and tracked marks (green) drawn."""
-    image = cv2.cvtColor(frame, cv2.COLOR_GRAY2BGR)
-    for name, (x, y, w, h) in rois.items():
-        cv2.rectangle(image, (x, y), (x + w - 1, y + h - 1), (255, 128, 0), 1)
-        column = positions_px.get(name, math.nan)
-        if math.isfinite(column):
-            cv2.line(image, (int(round(column)), y), (int(round(column)), y + h - 1),
-                     (0, 255, 0), 1)
-    return image
+def debug_image(frame, rois, positions_px, labels=None):
+    """Return a BGR copy of frame with the ROIs and tracked marks drawn (core draw_tracking)."""
+    return draw_tracking(frame, rois, positions_px, labels=labels)
 
 
 class CameraTracker(Node):
@@ -114,6 +115,7 @@ class CameraTracker(Node):
             raise InputError(f"{values['video_path']}: unknown frame rate; set video_fps")
         self._tracker = Tracker(self._rois, values['meters_per_pixel'], fps,
                                 values['video_exposure'] or None,
+                                config=TrackerConfig(polarity=values['polarity']),
                                 frame_size=self._video.frame_size)
         self._video_frames = iter(self._video)
         self._video_timer = self.create_timer(1.0 / (fps * values['video_speed']),
@@ -134,6 +136,7 @@ class CameraTracker(Node):
             frame = conversions.image_array(msg)
             if self._tracker is None:
                 self._tracker = Tracker(self._rois, self._values['meters_per_pixel'],
+                                        config=TrackerConfig(polarity=self._values['polarity']),
                                         frame_size=(msg.width, msg.height))
         except ValueError as error:
             self.frames_dropped += 1
@@ -145,13 +148,21 @@ class CameraTracker(Node):
 
     def _publish(self, result, frame, stamp, frame_id):
         slider, stator = result.marks['slider'], result.marks['stator']
-        self._publisher.publish(conversions.tracked_positions(
+        msg = conversions.tracked_positions(
             stamp, result.index, result.position('slider'), result.position('stator'),
-            slider.quality, stator.quality, frame_id))
+            slider.quality, stator.quality, frame_id)
+        if hasattr(msg, 'slider_sigma'):  # the fields the lead adds to TrackedPositions
+            scale = result.meters_per_pixel
+            msg.slider_sigma = slider.sigma_px * scale if slider.valid else math.nan
+            msg.stator_sigma = stator.sigma_px * scale if stator.valid else math.nan
+        self._publisher.publish(msg)
         self._frames += 1
         if self._values['publish_debug_image']:
+            labels = {name: mark.polarity or ''
+                      for name, mark in self._tracker.marks.items()}
             drawn = debug_image(np.asarray(frame), self._rois,
-                                {name: m.position_px for name, m in result.marks.items()})
+                                {name: m.position_px for name, m in result.marks.items()},
+                                labels)
             self._debug.publish(conversions.image_message(drawn, stamp, frame_id))
 
 
