@@ -8,7 +8,6 @@ start of the exposure); a lost mark is published as invalid (NaN), never invente
 ``publish_debug_image`` the frame is republished with the ROIs and tracked marks drawn.
 """
 
-import math
 import sys
 
 from microball_msgs.msg import TrackedPositions
@@ -148,13 +147,11 @@ class CameraTracker(Node):
 
     def _publish(self, result, frame, stamp, frame_id):
         slider, stator = result.marks['slider'], result.marks['stator']
+        scale = result.meters_per_pixel
         msg = conversions.tracked_positions(
             stamp, result.index, result.position('slider'), result.position('stator'),
-            slider.quality, stator.quality, frame_id)
-        if hasattr(msg, 'slider_sigma'):  # the fields the lead adds to TrackedPositions
-            scale = result.meters_per_pixel
-            msg.slider_sigma = slider.sigma_px * scale if slider.valid else math.nan
-            msg.stator_sigma = stator.sigma_px * scale if stator.valid else math.nan
+            slider.quality, stator.quality, frame_id,
+            slider_sigma=slider.sigma_px * scale, stator_sigma=stator.sigma_px * scale)
         self._publisher.publish(msg)
         self._frames += 1
         if self._values['publish_debug_image']:

@@ -46,8 +46,6 @@ CSV columns), ``Tracker`` (frame by frame, for a node), ``MarkTracker`` (one mar
 (input validation with one-line InputErrors).
 """
 
-from typing import Any
-
 from microball_ros.core.tracking.config import METHODS, POLARITIES, TrackerConfig
 from microball_ros.core.tracking.draw import draw_tracking
 from microball_ros.core.tracking.image import (
@@ -68,17 +66,3 @@ __all__ = ['METHODS', 'POLARITIES', 'MarkMeasurement', 'MarkTracker', 'Roi', 'Tr
            'TrackedFrame', 'Tracker', 'TrackerConfig', 'check_roi', 'check_scale',
            'detect_rois', 'draw_tracking', 'gray_frames', 'parse_roi', 'symmetric_center',
            'to_gray', 'track']
-
-# Names that moved to microball_ros.io.video (file and ROS-image I/O is not core). Resolved
-# on first use only, so importing the core never loads io; import them from io.video instead.
-_MOVED_TO_IO = ('FrameSource', 'iter_frames', 'image_to_gray', 'IMAGE_ENCODINGS',
-                'IMAGE_EXTENSIONS')
-
-
-def __getattr__(name: str) -> Any:
-    """Resolve a name that moved to microball_ros.io.video (old import path, still working)."""
-    if name in _MOVED_TO_IO:
-        from microball_ros.io import video
-
-        return getattr(video, name)
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
