@@ -49,9 +49,9 @@ def _fraction(text):
 class _Progress:
     """Progress lines on stderr, held back a moment so that none precedes a quick error.
 
-    A line is printed when the next one arrives, after HOLD seconds (a timer), or when the
-    command succeeds; when it fails, the pending line is dropped and the error is the only
-    line the user sees.
+    A line is printed when the next one arrives or after HOLD seconds (a timer); a line still
+    pending when the command ends is dropped: on success the results say it, on failure the
+    error is the only line the user sees.
     """
 
     HOLD = 0.5
@@ -678,7 +678,7 @@ def main(argv=None):
         print(f'microball {args.command}: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
-        _progress.flush()
+        _progress.drop()
 
 
 if __name__ == '__main__':
