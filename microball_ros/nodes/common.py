@@ -218,10 +218,11 @@ class NodeDiagnostics:
         """Count another event (for example a lost mark)."""
         self.counts[name] += n
 
-    def error(self, text):
-        """Record a failure the node survived (logged each time)."""
+    def error(self, text, log=True):
+        """Record a failure the node survived (logged each time, unless already logged)."""
         self.last_error = text
-        self._node.get_logger().error(text)
+        if log:
+            self._node.get_logger().error(text)
         self.counts['errors'] += 1
 
     def status(self):
