@@ -90,7 +90,9 @@ class BenchSimulator(Node):
         self._servo = None
         self._images = create_publisher(self, Image, 'camera/image_raw', IMAGE_QOS)
         self._truth = create_publisher(self, BenchState, 'bench/ground_truth', DATA_QOS)
-        self._clock = create_publisher(self, ClockMsg, '/clock', QoSProfile(depth=10))
+        # Not self._clock: that is the Node's own clock.
+        self._clock_publisher = create_publisher(self, ClockMsg, '/clock',
+                                                 QoSProfile(depth=10))
         self.diagnostics = NodeDiagnostics(self)
         self.guard = InputGuard(self, self.diagnostics, 'servo/command',
                                 expected=values['expected_publishers'],
@@ -143,7 +145,8 @@ class BenchSimulator(Node):
         self.diagnostics.count('frames published')
         self._truth.publish(self._bench_state(frame, stamp, frame_id))
         if self._values['publish_clock']:
-            self._clock.publish(ClockMsg(clock=conversions.seconds_to_stamp(self._rig.time)))
+            self._clock_publisher.publish(
+                ClockMsg(clock=conversions.seconds_to_stamp(self._rig.time)))
 
     def _bench_state(self, frame, stamp, frame_id):
         state = frame.state
