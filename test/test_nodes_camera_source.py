@@ -65,7 +65,7 @@ def test_a_rendered_video_is_published_frame_by_frame_with_mid_exposure_stamps(
     finally:
         harness.close()
     assert len(received) == len(frames)
-    for k, (msg, frame) in enumerate(zip(received, frames)):
+    for k, (msg, frame) in enumerate(zip(received, frames, strict=True)):
         assert msg.encoding == 'mono8' and msg.header.frame_id == 'lab_camera'
         assert (msg.width, msg.height, msg.step) == (64, 48, 64)
         np.testing.assert_array_equal(_pixels(msg, np.uint8), frame)  # FFV1 is lossless
@@ -84,7 +84,7 @@ def test_a_16_bit_png_sequence_is_published_as_mono16(ros_context, tmp_path):
     finally:
         harness.close()
     assert len(received) == len(frames)
-    for k, (msg, frame) in enumerate(zip(received, frames)):
+    for k, (msg, frame) in enumerate(zip(received, frames, strict=True)):
         assert msg.encoding == 'mono16' and msg.is_bigendian == 0
         assert msg.step == 2 * msg.width
         assert frame.max() > 255
