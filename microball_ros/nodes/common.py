@@ -22,14 +22,11 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 import rclpy
-from rclpy.duration import Duration
-from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import (
     DurabilityPolicy,
     HistoryPolicy,
-    LivelinessPolicy,
     QoSProfile,
     ReliabilityPolicy,
 )
@@ -64,11 +61,12 @@ IMAGE_SUBSCRIPTION_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=5,
                                     reliability=ReliabilityPolicy.BEST_EFFORT,
                                     durability=DurabilityPolicy.VOLATILE)
 
-# Publishers of the nodes assert their liveliness at least this often (automatic liveliness),
-# so a subscriber learns within a second that a killed publisher is gone (the graph keeps a
-# killed process's endpoints for Fast DDS's 20 s participant lease). Subscriptions request no
-# lease (the default, infinite), so they still match every publisher.
-PUBLISHER_LIVELINESS_LEASE = Duration(seconds=1)
+# A publisher silent this long (wall clock) may be replaced by a new one that continues its
+# sequence (InputGuard): a killed node restarted. Needed because the graph keeps a killed
+# process's endpoints for Fast DDS's participant lease (20 s, measured), and Fast DDS reports
+# no liveliness change to a subscription that requests no lease (ours request none, so they
+# match every publisher).
+TAKEOVER_SILENCE = 1.0
 
 # The largest queue a QoS override may ask for (a typo such as depth 1e9 would exhaust memory).
 MAX_DEPTH = 100000
@@ -122,14 +120,8 @@ def _overridden(create, topic):
 
 
 def create_publisher(node, message_type, topic, qos):
-    """Create a publisher with a copy of ``qos``, overridable by qos_overrides parameters.
-
-    The copy also asserts liveliness (PUBLISHER_LIVELINESS_LEASE) so that InputGuard sees a
-    killed publisher go within a second.
-    """
+    """Create a publisher with a copy of ``qos``, overridable by qos_overrides parameters."""
     profile = copy_qos(qos)
-    profile.liveliness = LivelinessPolicy.AUTOMATIC
-    profile.liveliness_lease_duration = PUBLISHER_LIVELINESS_LEASE
     return _overridden(lambda: node.create_publisher(
         message_type, topic, profile, qos_overriding_options=_overriding_options()), topic)
 
@@ -273,16 +265,17 @@ class InputGuard:
     A subscription made by ``subscribe`` passes a message on to the node's callback only if
       * it comes from one of the ``expected`` publishers the node locked onto first (the graph
         may list more publishers: another rig on this ROS domain, whose messages are dropped
-        as 'foreign publisher'; 0 accepts any number). A publisher that left the graph, or that
-        a liveliness event shows dead (killed), may be replaced by a new one (a restart); the
-        sequence checks then start afresh and ``on_restart`` is called;
+        as 'foreign publisher'; 0 accepts any number). A publisher that left the graph may be
+        replaced by a new one (a restart: the sequence checks start afresh and ``on_restart``
+        is called); so may one silent for TAKEOVER_SILENCE s (a killed node, which the graph
+        lists for 20 s more) by a new one whose stamps continue its sequence;
       * ``check(msg)`` (the node's content check) returns None, else (kind, detail);
       * its header stamp is later than the last one ('stamp going backwards', 'duplicated
         stamp'; equal stamps pass with ``allow_equal_stamps``), and with ``frame_index`` its
         frame_index is larger than the last one ('frame index going backwards').
     Every drop is counted per kind in ``diagnostics`` (logged once per kind); every accepted
-    message is counted as received. Nothing here depends on wall time or arrival order beyond
-    the order of the messages themselves.
+    message is counted as received. Only the take-over of a silent publisher looks at the wall
+    clock, and only while the topic has more publishers than expected.
     """
 
     def __init__(self, node, diagnostics, topic, expected=1, check=None, frame_index=False,
@@ -295,8 +288,7 @@ class InputGuard:
         self._frame_index = frame_index
         self._allow_equal = allow_equal_stamps
         self._on_restart = on_restart
-        self._owned = []            # publisher gids accepted, oldest first
-        self._deaths = 0            # publishers the liveliness events showed dead, not replaced
+        self._owned = {}            # publisher gid -> when it last sent (monotonic s)
         self._last_stamp = None
         self._last_index = None
 
@@ -305,34 +297,37 @@ class InputGuard:
         def on_message(msg, info):
             if self.accept(msg, info):
                 callback(msg)
-        events = SubscriptionEventCallbacks(liveliness=self._on_liveliness)
-        return create_subscription(self._node, message_type, self.topic, on_message, qos,
-                                   event_callbacks=events)
+        return create_subscription(self._node, message_type, self.topic, on_message, qos)
 
-    def _on_liveliness(self, status):
-        if status.not_alive_count_change > 0:
-            self._deaths += status.not_alive_count_change
-
-    def _publisher_problem(self, gid):
-        if not self.expected or gid is None or gid in self._owned:
+    def _publisher_problem(self, gid, msg):
+        if not self.expected or gid is None:
             return None
-        restart = False
+        now = time.monotonic()
+        if gid in self._owned:
+            self._owned[gid] = now
+            return None
+        restart = takeover = False
         if len(self._owned) >= self.expected:
             listed = {bytes(info.endpoint_gid)
                       for info in self._node.get_publishers_info_by_topic(self.topic)}
             gone = [g for g in self._owned if g not in listed]
-            self._owned = [g for g in self._owned if g in listed]
-            self._deaths = max(0, self._deaths - len(gone))
+            for g in gone:
+                del self._owned[g]
             restart = bool(gone)
-            if len(self._owned) >= self.expected and self._deaths:
-                self._deaths -= 1
-                self._owned.pop(0)
-                restart = True
+            if len(self._owned) >= self.expected:
+                silent = min(self._owned, key=self._owned.get)
+                if now - self._owned[silent] >= TAKEOVER_SILENCE \
+                        and self._sequence_problem(msg) is None:
+                    del self._owned[silent]
+                    takeover = True
             if len(self._owned) >= self.expected:
                 return ('foreign publisher', f'{len(listed)} publishers on {self.topic}, '
                         f'{self.expected} expected: another rig on this ROS domain?')
-        self._owned.append(gid)
-        if restart:
+        self._owned[gid] = now
+        if takeover:
+            self._node.get_logger().info(f'{self.topic}: a new publisher continues the '
+                                         'sequence of a silent one (restarted?)')
+        elif restart:
             self._node.get_logger().info(f'{self.topic}: a new publisher replaces one that '
                                          'went away; its sequence starts afresh')
             self._last_stamp = self._last_index = None
@@ -358,7 +353,7 @@ class InputGuard:
         gid = None
         if info and info.get('publisher_gid'):
             gid = bytes(info['publisher_gid']['data'])
-        problem = self._publisher_problem(gid)
+        problem = self._publisher_problem(gid, msg)
         if problem is None and self._check is not None:
             problem = self._check(msg)
         if problem is None:
