@@ -160,3 +160,43 @@ def test_every_node_starts_with_the_yaml_and_declares_each_of_its_parameters(
             codes[name] = process.returncode
         harness.close()
     assert codes == dict.fromkeys(NODES, 0)
+
+
+def test_experiment_params_file_overrides_the_scenario_per_node(tmp_path):
+    from microball_ros.app.experiment import node_parameters
+    from microball_ros.core.errors import InputError
+
+    plain = node_parameters('paper', 10.0, 1.0, output=str(tmp_path / 'bag'))
+    given = node_parameters('paper', 10.0, 1.0, output=str(tmp_path / 'bag'),
+                            params_file=CONFIG)
+    config = {name: flatten(section['ros__parameters']) for name, section in _config().items()}
+    assert given['three_stage_estimator']['exposure'] == 0.0  # the file's, not 1/60
+    assert plain['three_stage_estimator']['exposure'] == pytest.approx(1 / 60)
+    assert given['friction_identifier'] == config['friction_identifier']
+    assert given['servo_commander']['heartbeat'] == 1.0
+    # The run control stays the experiment's: duration, start-up, bag directory.
+    assert given['bench_simulator']['duration'] == 10.0
+    assert given['bench_simulator']['wait_for_subscribers'] == 2
+    assert given['recorder']['output'] == str(tmp_path / 'bag')
+    assert given['recorder']['compression'] == 'zstd'
+    # Only the file's nodes change; qos_overrides pass through as dotted names.
+    small = tmp_path / 'small.yaml'
+    small.write_text('/three_stage_estimator:\n  ros__parameters:\n    epsilon: 0.05\n'
+                     '    qos_overrides:\n      /tracking/positions:\n        subscription:\n'
+                     '          depth: 500\n')
+    changed = node_parameters('paper', 10.0, 1.0, params_file=str(small))
+    assert changed['three_stage_estimator'] == {
+        **plain['three_stage_estimator'], 'epsilon': 0.05,
+        'qos_overrides./tracking/positions.subscription.depth': 500}
+    assert changed['camera_tracker'] == plain['camera_tracker']
+    for text, message in (('estimator:\n  ros__parameters: {a: 1}\n', 'unknown node'),
+                          ('friction_identifier:\n  ros__parameters: {refit: 2}\n',
+                           'has no parameter refit'),
+                          ('[1, 2]\n', 'not a ROS 2 parameters file'),
+                          (': : :\n', 'not YAML')):
+        bad = tmp_path / 'bad.yaml'
+        bad.write_text(text)
+        with pytest.raises(InputError, match=message):
+            node_parameters('paper', 10.0, 1.0, params_file=str(bad))
+    with pytest.raises(InputError, match='No such file'):
+        node_parameters('paper', 10.0, 1.0, params_file=str(tmp_path / 'missing.yaml'))
