@@ -288,7 +288,8 @@ def cmd_experiment(args):
     bench.get_scenario(args.scenario)
     try:
         monitor = run_experiment(args.scenario, args.duration, args.speed, progress=_progress,
-                                 output=args.output, domain_id=args.domain_id)
+                                 output=args.output, domain_id=args.domain_id,
+                                 params_file=args.params)
     except NodeCrashed as error:
         _progress.flush()
         print(f'microball experiment: {error}', file=sys.stderr)
@@ -504,6 +505,9 @@ def build_parser():
                             help='simulation speed factor; != 1 publishes /clock and the '
                                  'nodes use sim time (default: 1, real time)')
     experiment.add_argument('--output', help='bag directory to record every topic into')
+    experiment.add_argument('--params', metavar='FILE',
+                            help="ROS 2 parameters file (config/microball.yaml's form); its "
+                                 "values override the scenario's per node")
     experiment.add_argument('--domain-id', type=int, metavar='N',
                             help='ROS domain to run in (default: a free one; one another '
                                  'microball run holds is refused)')

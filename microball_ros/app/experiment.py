@@ -45,13 +45,50 @@ def _die_with_parent():
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
-def node_parameters(scenario_name, duration, speed, output=None):
+def node_parameters(scenario_name, duration, speed, output=None, params_file=None):
     """Return node name -> parameter dict for an experiment on the named scenario.
 
     With ``output`` a recorder joins, recording every topic, and the bag's metadata keeps the
     tracker's, estimator's and identifier's parameters (for ``microball reprocess``, and to
-    track the frames of a bag cut down to them).
+    track the frames of a bag cut down to them). ``params_file`` is a ROS 2 parameters file
+    (config/microball.yaml's form: node name -> ros__parameters); its values override the
+    scenario's per node, except the run control the experiment's own options set (RUN_CONTROL).
+    A file that is missing, not such YAML, or names an unknown node or parameter raises
+    InputError.
     """
+    import importlib
+
+    from microball_ros.core.errors import InputError
+
+    overrides = {}
+    if params_file:
+        try:
+            with open(params_file) as handle:
+                loaded = yaml.safe_load(handle)
+        except OSError as error:
+            raise InputError(f'{params_file}: {error.strerror}') from None
+        except yaml.YAMLError:
+            raise InputError(f'{params_file}: not YAML') from None
+        if not isinstance(loaded, dict) or not all(
+                isinstance(v, dict) and isinstance(v.get('ros__parameters'), dict)
+                for v in loaded.values()):
+            raise InputError(f'{params_file}: not a ROS 2 parameters file (node name -> '
+                             'ros__parameters)')
+        for key, section in loaded.items():
+            name = str(key).lstrip('/')
+            known = NODES + ('recorder', 'camera_source')
+            if name not in known:
+                raise InputError(f'{params_file}: unknown node {key!r}; known: '
+                                 f'{", ".join(known)}')
+            declared = importlib.import_module(f'microball_ros.nodes.{name}').PARAMS
+            flat = _flatten(section['ros__parameters'])
+            unknown = [p for p in flat if p not in declared and p != 'use_sim_time'
+                       and not p.startswith('qos_overrides.')]
+            if unknown:
+                raise InputError(f'{params_file}: {name} has no parameter '
+                                 f'{", ".join(sorted(unknown))}')
+            overrides[name] = {k: v for k, v in flat.items()
+                               if k not in RUN_CONTROL.get(name, ())}
     scenario = bench.get_scenario(scenario_name)
     rois = rig.suggested_rois(scenario)
     sim_time = {'use_sim_time': True} if speed != 1.0 else {}
@@ -69,12 +106,33 @@ def node_parameters(scenario_name, duration, speed, output=None):
         'three_stage_estimator': {'exposure': rig.camera_for(scenario).exposure, **sim_time},
         'friction_identifier': dict(sim_time),
     }
+    for name in parameters:
+        parameters[name].update(overrides.get(name, {}))
     if output:
         kept = {f'microball.{name}': yaml.safe_dump(
             {k: v for k, v in parameters[name].items() if k != 'use_sim_time'})
             for name in ('camera_tracker', 'three_stage_estimator', 'friction_identifier')}
-        parameters['recorder'] = {'output': output, 'custom_data': yaml.safe_dump(kept)}
+        parameters['recorder'] = {**overrides.get('recorder', {}), 'output': output,
+                                  'custom_data': yaml.safe_dump(kept)}
     return parameters
+
+
+# Parameters the experiment's own options set (a --params file cannot change them).
+RUN_CONTROL = {'bench_simulator': ('scenario', 'speed', 'publish_clock', 'duration',
+                                   'wait_for_subscribers'),
+               'recorder': ('output', 'custom_data'),
+               'camera_tracker': ('video_path', 'wait_for_subscribers')}
+
+
+def _flatten(mapping, prefix=''):
+    """Return nested ros__parameters as dotted name -> value (as ROS 2 reads them)."""
+    flat = {}
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f'{prefix}{key}.'))
+        else:
+            flat[f'{prefix}{key}'] = value
+    return flat
 
 
 # Every subscription the pipeline needs before the bench's first frame: topic -> count
@@ -233,7 +291,7 @@ def summary_lines(monitor, scenario_name):
 
 
 def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=3.0,
-                   output=None, domain_id=None):
+                   output=None, domain_id=None, params_file=None):
     """Run the experiment; return the monitor (counts, windows, models) when it is done.
 
     Done means: the bench has published every frame of ``duration``, each was tracked, and
@@ -246,7 +304,7 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
     scenario = bench.get_scenario(scenario_name)
     fps = rig.camera_for(scenario).fps
     expected_frames = math.floor(duration * fps + 1e-9)
-    parameters = node_parameters(scenario_name, duration, speed, output)
+    parameters = node_parameters(scenario_name, duration, speed, output, params_file)
     ready = _READY_RECORDING if output else _READY
     claim = claim_domain(domain_id)
     env = claim.environment()
