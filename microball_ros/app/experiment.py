@@ -28,6 +28,7 @@ import yaml
 
 from microball_ros.app.isolation import ForeignPublisherCheck, IsolationError, claim_domain
 from microball_ros.core import bench, rig
+from microball_ros.nodes.camera_tracker import reliable_images
 from microball_ros.nodes.common import DATA_QOS
 
 NODES = ('servo_commander', 'bench_simulator', 'camera_tracker', 'three_stage_estimator',
@@ -81,7 +82,7 @@ def node_parameters(scenario_name, duration, speed, output=None, params_file=Non
                 raise InputError(f'{params_file}: unknown node {key!r}; known: '
                                  f'{", ".join(known)}')
             declared = importlib.import_module(f'microball_ros.nodes.{name}').PARAMS
-            flat = _flatten(section['ros__parameters'])
+            flat = flatten_parameters(section['ros__parameters'])
             unknown = [p for p in flat if p not in declared and p != 'use_sim_time'
                        and not p.startswith('qos_overrides.')]
             if unknown:
@@ -106,6 +107,9 @@ def node_parameters(scenario_name, duration, speed, output=None, params_file=Non
         'three_stage_estimator': {'exposure': rig.camera_for(scenario).exposure, **sim_time},
         'friction_identifier': dict(sim_time),
     }
+    # Inside a run every frame must reach the tracker even when it falls seconds behind.
+    for name, role in (('bench_simulator', 'publisher'), ('camera_tracker', 'subscription')):
+        parameters[name].update(flatten_parameters({'qos_overrides': reliable_images(role)}))
     for name in parameters:
         parameters[name].update(overrides.get(name, {}))
     if output:
@@ -124,12 +128,12 @@ RUN_CONTROL = {'bench_simulator': ('scenario', 'speed', 'publish_clock', 'durati
                'camera_tracker': ('video_path', 'wait_for_subscribers')}
 
 
-def _flatten(mapping, prefix=''):
+def flatten_parameters(mapping, prefix=''):
     """Return nested ros__parameters as dotted name -> value (as ROS 2 reads them)."""
     flat = {}
     for key, value in mapping.items():
         if isinstance(value, dict):
-            flat.update(_flatten(value, f'{prefix}{key}.'))
+            flat.update(flatten_parameters(value, f'{prefix}{key}.'))
         else:
             flat[f'{prefix}{key}'] = value
     return flat
