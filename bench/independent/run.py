@@ -38,6 +38,10 @@ def analyze(tool, csv, exposure, timeout):
     for name in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
         env[name] = '1'
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    # A reinstall of the package (pip install -e) removes the script for a moment.
+    deadline = time.monotonic() + 60.0
+    while not os.path.exists(tool) and time.monotonic() < deadline:
+        time.sleep(0.5)
     t0 = time.monotonic()
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env,
@@ -45,6 +49,8 @@ def analyze(tool, csv, exposure, timeout):
         code, err = p.returncode, p.stderr
     except subprocess.TimeoutExpired as e:
         code, err = 'timeout', (e.stderr or b'').decode(errors='replace')
+    except FileNotFoundError as e:
+        code, err = 'no-tool', str(e)
     dt = time.monotonic() - t0
     csv.with_suffix('.stderr.txt').write_text(err)
     lines = [ln for ln in err.splitlines() if ln.strip()]
@@ -55,6 +61,17 @@ def analyze(tool, csv, exposure, timeout):
         except ValueError:
             result = None
     return code, (lines[-1] if lines else ''), dt, result
+
+
+def tool_version(tool):
+    """Return the git commit of the checkout a venv's tool belongs to, or '?'."""
+    repo = Path(tool).resolve().parent.parent.parent
+    try:
+        p = subprocess.run(['git', '-C', str(repo), 'log', '-1', '--format=%h %s'],
+                           capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.TimeoutExpired):
+        return '?'
+    return p.stdout.strip()[:60] if p.returncode == 0 else '?'
 
 
 def verdict(result):
@@ -196,7 +213,8 @@ def main(argv=None):
         rows.append(row)
         fails += f
     ttot = time.monotonic() - t0
-    text = [f'tool: {a.tool}; exposure passed: {"no" if a.no_exposure else "true value"}; '
+    text = [f'tool: {a.tool} ({tool_version(a.tool)}); '
+            f'exposure passed: {"no" if a.no_exposure else "true value"}; '
             f'{len(jobs)} analyses; generation {tgen:.0f} s, total {ttot:.0f} s', '',
             table(rows)]
     if fails:
