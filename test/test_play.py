@@ -32,7 +32,8 @@ COUNT = 60
 
 
 def _message(k):
-    return conversions.tracked_positions(T0 / 1e9 + k * PERIOD / 1e9, k, 1e-3, 2e-3, 1.0, 1.0)
+    return conversions.tracked_positions(T0 / 1e9 + k * PERIOD / 1e9, k, 1e-3, 2e-3, 1.0, 1.0,
+                                         slider_sigma=1e-7, stator_sigma=1e-7)
 
 
 @pytest.fixture(scope='module')
