@@ -168,12 +168,16 @@ class NodeProcess:
         if self.running:
             self._process.send_signal(sig)
 
-    def stop(self, timeout=10.0):
-        """SIGINT, wait up to ``timeout`` s, then SIGKILL; return the exit code."""
+    def stop(self, timeout=10.0, sig=signal.SIGINT):
+        """Send ``sig`` (SIGINT), wait up to ``timeout`` s, then SIGKILL; return the exit code.
+
+        ``sig=None`` sends nothing first: it waits for a process that is to exit by itself.
+        """
         if self._process is None:
             return None
         if self.poll() is None:
-            self._process.send_signal(signal.SIGINT)
+            if sig is not None:
+                self._process.send_signal(sig)
             try:
                 self._process.wait(timeout)
             except subprocess.TimeoutExpired:

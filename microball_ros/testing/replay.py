@@ -136,12 +136,12 @@ class Replay:
         Byte-identical where the bag carries this platform's fingerprint key, within relative
         1e-9 (every count, integer and string identical) anywhere else.
         """
+        if not self.verdict.ok:
+            raise AssertionError('\n'.join(self.report()))
         if self.same_platform and self.verdict.status != BYTE_IDENTICAL:
             raise AssertionError('\n'.join([
                 f'{self.node_name}: not byte-identical on the platform that recorded the bag',
                 *self.report()]))
-        if not self.verdict.ok:
-            raise AssertionError('\n'.join(self.report()))
 
     def write_bag(self, path, compression='zstd'):
         """Write the inputs and the new outputs as a bag that replay() takes as it is.
