@@ -174,3 +174,22 @@ def test_the_plugin_serves_a_test_outside_the_project(tmp_path, parameters, pass
     if not passes:
         assert ('three_stage_estimator: differs: first differing message'
                 in result.stdout), result.stdout[-3000:]
+
+
+README = os.path.join(os.path.dirname(os.path.abspath(__file__)), os.pardir, 'microball_ros',
+                      'testing', 'README.md')
+
+
+def test_the_readme_example_runs_as_written(tmp_path):
+    import subprocess
+
+    text = open(README).read()
+    example = text.split('```python\n', 1)[1].split('```', 1)[0]
+    (tmp_path / 'test_my_nodes.py').write_text(example)
+    env = {k: v for k, v in os.environ.items() if k not in ('ROS_DOMAIN_ID',
+                                                            'FASTDDS_DEFAULT_PROFILES_FILE')}
+    result = subprocess.run(
+        [sys.executable, '-m', 'pytest', '-p', 'microball_ros.testing.plugin',
+         '-p', 'no:cacheprovider', 'test_my_nodes.py'], cwd=tmp_path, env=env,
+        capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0 and '3 passed' in result.stdout, result.stdout[-3000:]
