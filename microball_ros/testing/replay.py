@@ -201,7 +201,7 @@ def _output_types(bag, outputs, inputs, spec):
 
 
 def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=None,
-           context=None, expected=None, timeout=30.0, log_dir=None):
+           context=None, expected=None, timeout=30.0, connect_timeout=60.0, log_dir=None):
     """Replay a bag's input topics through one node and compare its outputs; return a Replay.
 
     ``bag``: a bag path or an opened Bag. ``node``: a Node class or factory (called with
@@ -210,7 +210,8 @@ def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=N
     (default: the bag's ``microball.testing`` entry; outputs may be {topic: type} for topics
     the bag lacks). ``parameters``: values that override the ones the bag recorded for the node
     (custom_data ``microball.<node>``). ``expected``: {output topic: count} to wait for
-    (default: the recorded counts). ``timeout``: seconds any wait may go without progress.
+    (default: the recorded counts). ``timeout``: seconds a wait for a message may go without
+    progress; ``connect_timeout``: seconds the node may take to start and connect.
     ``context``: an initialised rclpy Context (default: one of its own, shut down after).
     """
     import rclpy
@@ -259,7 +260,7 @@ def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=N
         harness.spin_until(
             lambda: all(p.get_subscription_count() >= 1
                         for p in player.publishers_by_topic.values())
-            and all(s.get_publisher_count() >= 1 for s in subscriptions), timeout,
+            and all(s.get_publisher_count() >= 1 for s in subscriptions), connect_timeout,
             f'{name} to connect to {", ".join([*inputs, *types])}')
         for topic in types:
             received.qos[topic] = qos_profiles_yaml(
