@@ -11,7 +11,6 @@ import threading
 from microball_msgs.msg import TrackedPositions
 import pytest
 from rclpy.serialization import serialize_message
-from ros_testing import Harness
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as RosbagsWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -23,6 +22,7 @@ from microball_ros.io import conversions
 from microball_ros.io.bags.reader import open_bag
 from microball_ros.io.bags.schema import msg_file
 from microball_ros.nodes.common import DATA_QOS
+from microball_ros.testing import Harness
 
 POSITIONS = '/tracking/positions'
 POSITIONS_TYPE = 'microball_msgs/msg/TrackedPositions'
