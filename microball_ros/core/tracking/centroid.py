@@ -119,7 +119,8 @@ class CentroidMarkTracker:
     def _measure(self, frame: np.ndarray, polarity: str) -> MarkMeasurement:
         """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
 
-        Quality = (1 - exp(-(snr / snr_scale)^2)) * exp(-(area ratio - 1)^2 / (2 tol^2)), 0 after
+        Quality = (1 - exp(-(snr / snr_scale)^2)) * exp(-(area ratio - 1)^2 / (2 tol^2)) (tol:
+        area_tolerance and 3 sigma of the area's noise in quadrature), 0 after
         a failed check (too dark, saturated, mark at the ROI edge, no mark); the position is NaN
         whenever the quality is below ``min_quality``.
         """
@@ -156,7 +157,8 @@ class CentroidMarkTracker:
             deficit = self._deficit(profile, keep, polarity)
             if deficit is None:
                 return self._invalid('too dark')
-            _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px)
+            _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px,
+                                  cfg.merge_gap_px)
             margin = guard
         if cfg.weight_rows and h > 1:
             weighted = row_weighted_profile(region, lo, hi, pad, polarity)
@@ -165,7 +167,8 @@ class CentroidMarkTracker:
                 if deficit is None:
                     return self._invalid('too dark')
         noise = deficit_noise(deficit, keep)
-        _, peak, lo, hi = locate(deficit, noise, cfg.threshold, cfg.smoothing_px)
+        _, peak, lo, hi = locate(deficit, noise, cfg.threshold, cfg.smoothing_px,
+                                 cfg.merge_gap_px)
         snr = peak * math.sqrt(cfg.smoothing_px) / noise
         if snr < cfg.min_snr or peak < cfg.min_depth:
             return self._invalid('low contrast', contrast=peak)
@@ -186,7 +189,10 @@ class CentroidMarkTracker:
         position, sigma = refine_position(deficit, first, last, centroid, sigma_centroid, noise,
                                           x, cfg, self._previous)
         q_snr = 1.0 - math.exp(-(snr / cfg.snr_scale) ** 2)
-        q_area = math.exp(-0.5 * ((ratio - 1.0) / cfg.area_tolerance) ** 2)
+        # The area's own noise widens the tolerance (a faint mark's area is noisy).
+        area_noise = 3.0 * noise * math.sqrt(last - first + 1) / area
+        tolerance = math.hypot(cfg.area_tolerance, area_noise)
+        q_area = math.exp(-0.5 * ((ratio - 1.0) / tolerance) ** 2)
         quality = q_snr * q_area
         extent = float(hi - lo + 1)
         if quality < cfg.min_quality or not math.isfinite(position):

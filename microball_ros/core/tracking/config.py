@@ -31,6 +31,7 @@ class TrackerConfig:
     ``template_forget``: per-frame forgetting of the learned template; ``background_rate``:
     the rate of the static-background running mean; ``match_tolerance``: the fit residual,
     in units of the plate's noise, above which a frame does not show the learned mark.
+    ``merge_gap_px``: parts of a mark above the threshold this close are one mark (bars).
     """
 
     method: str = 'auto'
@@ -38,11 +39,12 @@ class TrackerConfig:
     baseline_degree: int = 3
     smoothing_px: int = 5
     threshold: float = 0.05
+    merge_gap_px: int = 16
     pad_px: int = 4
     weight_rows: bool = True
     min_snr: float = 8.0
     snr_scale: float = 12.0
-    min_depth: float = 0.02
+    min_depth: float = 0.005
     min_baseline: float = 4.0
     saturation_level: float | None = None
     max_saturated_fraction: float = 0.002
@@ -67,8 +69,10 @@ class TrackerConfig:
                              f'got {self.polarity!r}')
         if not 0 <= int(self.baseline_degree) <= 5:
             raise InputError('tracker baseline_degree must be in 0..5')
-        if int(self.smoothing_px) < 1 or int(self.pad_px) < 0 or int(self.area_history) < 1:
-            raise InputError('tracker smoothing_px, area_history must be >= 1, pad_px >= 0')
+        if (int(self.smoothing_px) < 1 or int(self.pad_px) < 0 or int(self.area_history) < 1
+                or int(self.merge_gap_px) < 0):
+            raise InputError('tracker smoothing_px, area_history must be >= 1, pad_px and '
+                             'merge_gap_px >= 0')
         if not (self.max_blur_px >= 0 and 0 < self.template_forget <= 1
                 and 0 < self.background_rate <= 1 and self.match_tolerance > 0):
             raise InputError('tracker max_blur_px must be >= 0, template_forget and '

@@ -24,25 +24,49 @@ class Dip(NamedTuple):
     hi: int
 
 
-def dip_extent(smoothed: np.ndarray, peak_index: int, threshold: float) -> tuple[int, int]:
-    """Return the first and last index around ``peak_index`` where ``smoothed > threshold``."""
+def dip_extent(smoothed: np.ndarray, peak_index: int, threshold: float,
+               gap: int = 0) -> tuple[int, int]:
+    """Return the first and last index around ``peak_index`` where ``smoothed > threshold``.
+
+    Runs that reach a quarter of the peak, separated from it by at most ``gap`` samples, are
+    joined (a mark made of several parts, such as two bars, is one mark).
+    """
     below = smoothed <= threshold
     left = np.flatnonzero(below[:peak_index])
     right = np.flatnonzero(below[peak_index + 1:])
     lo = int(left[-1]) + 1 if left.size else 0
     hi = peak_index + int(right[0]) if right.size else smoothed.size - 1
+    if gap > 0:
+        # Only a part that stands out (a quarter of the peak) is joined, not noise.
+        above = np.flatnonzero(smoothed > max(threshold, 0.25 * smoothed[peak_index]))
+        while True:
+            before = above[(above < lo) & (above >= lo - gap - 1)]
+            if not before.size:
+                break
+            lo = int(before.min())
+            run = np.flatnonzero(below[:lo])
+            lo = int(run[-1]) + 1 if run.size else 0
+        while True:
+            after = above[(above > hi) & (above <= hi + gap + 1)]
+            if not after.size:
+                break
+            hi = int(after.max())
+            run = np.flatnonzero(below[hi + 1:])
+            hi = hi + int(run[0]) if run.size else smoothed.size - 1
     return lo, hi
 
 
-def locate(deficit: np.ndarray, noise: float, fraction: float, smoothing_px: int) -> Dip:
+def locate(deficit: np.ndarray, noise: float, fraction: float, smoothing_px: int,
+           gap: int = 0) -> Dip:
     """Return the strongest dip of the deficit smoothed over ``smoothing_px`` columns.
 
     Its extent is where the smoothed deficit exceeds ``fraction`` of the peak and three times
-    the noise of the smoothed deficit (``noise / sqrt(smoothing_px)`` per column).
+    the noise of the smoothed deficit (``noise / sqrt(smoothing_px)`` per column), parts
+    separated by at most ``gap`` columns joined.
     """
     smoothed = smooth(deficit, int(smoothing_px))
     k = int(np.argmax(smoothed))
     peak = float(smoothed[k])
     threshold = max(fraction * peak, 3.0 * noise / math.sqrt(smoothing_px))
-    lo, hi = dip_extent(smoothed, k, threshold)
+    lo, hi = dip_extent(smoothed, k, threshold, int(gap))
     return Dip(k, peak, lo, hi)
