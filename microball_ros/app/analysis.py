@@ -262,10 +262,7 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=None, f
     except InputError as error:
         raise RecordError(str(error)) from None
     grid = result.grid
-    runs = grid.segments(minimum=3)
-    used = np.zeros(len(grid.time), dtype=bool)
-    used[result.used] = True
-    a, b = max(runs, key=lambda r: np.count_nonzero(used[r[0]:r[1]]))
+    a, b = max(result.runs, key=lambda r: r[1] - r[0])
     span = slice(a, b)
     seen = grid.measured[span]
     extra = {}
@@ -293,7 +290,8 @@ def summary_lines(result):
         f'method {result.method} ({epsilon}), sample period {result.sample_period * 1e3:.2f} '
         f'ms, fundamental {result.fundamental_frequency:.4f} Hz, {data["samples_used"]} of '
         f'{data["samples_total"]} samples used ({result.samples_invalid} invalid)',
-        f'memory: {verdicts[loop.verdict]}; loop statistic {loop.statistic:+.4f} +- '
+        f'memory: {verdicts[result.pipeline.memory_verdict]}; loop statistic '
+        f'{loop.statistic:+.4f} +- '
         f'{loop.uncertainty:.4f} rad (bound on unresolved harmonics {loop.bias_bound:.4f}); '
         f'fundamental phase a_slider vs v_rel {result.memory.phase_difference:.4f} +- '
         f'{result.memory.uncertainty:.4f} rad (pi = 3.1416)',
@@ -317,7 +315,8 @@ def summary_lines(result):
     validation = result.validation
     if validation is not None:
         lines.append(
-            f'validation (Fig. 9): slider amplitude {validation.slider_amplitude_simulated * 1e3:.4f}'
+            'validation (Fig. 9): slider amplitude '
+            f'{validation.slider_amplitude_simulated * 1e3:.4f}'
             f' mm simulated vs {validation.slider_amplitude_measured * 1e3:.4f} mm measured, '
             f'slider-stator phase {validation.phase_simulated:.3f} vs '
             f'{validation.phase_measured:.3f} rad')

@@ -66,6 +66,7 @@ class PipelineResult:
     validation: object  # friction.ValidationResult or None
     viscous_limit: object  # (c, (lo, hi)) when the Langevin fit is degenerate, else None
     dynamic_model: object  # dict when memory is found, else None
+    runs: tuple = ()  # (start, stop) grid ranges analysed (contiguous, steady)
     warnings: tuple = field(default_factory=tuple)
 
     @property
@@ -80,7 +81,14 @@ class PipelineResult:
 
     @property
     def memory_verdict(self) -> str:
-        """Return 'memoryless', 'memory' or 'undetermined' (the loop test's verdict)."""
+        """Return 'memoryless', 'memory' or 'undetermined'.
+
+        The loop test's verdict for the three-stage method. The other methods reproduce the
+        paper's Fig. 7(a, b): their verdict is their own fundamental-phase test, artifacts
+        included (a 'method-phase-error' warning gives the loop test's).
+        """
+        if self.options.method != 'three-stage':
+            return 'memoryless' if self.phase_test.memoryless else 'memory'
         return self.loop.verdict
 
 
@@ -131,9 +139,11 @@ def _estimate_runs(grid, runs, frequency, options):
             fit_acceleration = acceleration
         center = estimation.center_difference(slider - stator, grid.dt)
         center_a = estimation.center_difference(slider, grid.dt)
-        keep = np.isin(center.index, index)
-        pieces.append((start + index, velocity, acceleration, fit_acceleration,
-                       center.velocity[keep], center_a.acceleration[keep]))
+        common = np.intersect1d(index, center.index)
+        mine, theirs = np.isin(index, common), np.isin(center.index, common)
+        pieces.append((start + index[mine], velocity[mine], acceleration[mine],
+                       fit_acceleration[mine], center.velocity[theirs],
+                       center_a.acceleration[theirs]))
     columns = [np.concatenate(parts) for parts in zip(*pieces, strict=True)]
     measured = grid.measured[columns[0]]
     return [column[measured] for column in columns]
@@ -195,6 +205,9 @@ def analyze_positions(time, stator, slider, valid=None, options: Options | None 
     per_period = 1 / (frequency * grid.dt)
     runs = [(a, b) for a, b in _trim_unsteady_ends(grid, runs, frequency)
             if b - a >= max(16, 2 * per_period + 2)]
+    if runs:  # the start-up cut: the frequency of the steady motion
+        frequency = _frequency(grid, runs, source)
+        per_period = 1 / (frequency * grid.dt)
     periods = sum(b - a for a, b in runs) / per_period
     if periods < MIN_PERIODS:
         raise InputError(f'{source}: too short: {periods:.1f} stator periods of '
@@ -221,7 +234,7 @@ def analyze_positions(time, stator, slider, valid=None, options: Options | None 
         options=options, grid=grid, sample_period=grid.dt, frequency=float(frequency),
         used=used, estimate=est, fit_acceleration=fit_acceleration, phase_test=phase,
         loop=loop, fit=None, comparison=(), validation=None, viscous_limit=None,
-        dynamic_model=None), runs, per_period)
+        dynamic_model=None, runs=tuple(runs)), runs, per_period)
 
 
 def analyze_windows(windows, options: Options | None = None, source='windows'):
