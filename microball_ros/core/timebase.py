@@ -121,9 +121,13 @@ def regularise(time, stator, slider, valid=None, fill=2) -> Grid:
     notes = []
     # A duplicated stamp: the frame carries its predecessor's stamp, so it belongs one slot on.
     duplicate = np.concatenate(([False], slot[1:] == slot[:-1]))
+    shifted = np.zeros(len(slot), dtype=bool)
     for k in np.flatnonzero(duplicate):
         if slot[k] == slot[k - 1] and (k + 1 == len(slot) or slot[k + 1] > slot[k] + 1):
             slot[k] += 1
+            shifted[k] = True
+    # A shifted frame's stamp is known to be wrong: it gets its slot's time.
+    t = np.where(shifted, t0 + slot * dt, t)
     keep = np.concatenate(([True], slot[1:] > slot[:-1]))
     dropped = int(np.count_nonzero(~keep)) + (total - len(t))
     if np.count_nonzero(duplicate):
