@@ -15,6 +15,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/msg_defs/msg', glob('msg_defs/msg/*.msg')),
+        ('share/' + package_name + '/config', ['config/microball.yaml']),
+        ('share/' + package_name + '/launch', ['launch/microball.launch.xml']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -32,6 +34,7 @@ setup(
             'three_stage_estimator = microball_ros.nodes.three_stage_estimator:main',
             'friction_identifier = microball_ros.nodes.friction_identifier:main',
             'recorder = microball_ros.nodes.recorder:main',
+            'camera_source = microball_ros.nodes.camera_source:main',
         ],
     },
 )

@@ -9,6 +9,7 @@ import argparse
 import json
 import os
 import sys
+import threading
 
 from microball_ros.core.errors import InputError, MicroballError
 
@@ -45,8 +46,57 @@ def _fraction(text):
     return value
 
 
-def _progress(message):
-    print(message, file=sys.stderr, flush=True)
+class _Progress:
+    """Progress lines on stderr, held back a moment so that none precedes a quick error.
+
+    A line is printed when the next one arrives or after HOLD seconds (a timer); a line still
+    pending when the command ends is dropped: on success the results say it, on failure the
+    error is the only line the user sees.
+    """
+
+    HOLD = 0.5
+
+    def __init__(self):
+        self._pending = None
+        self._timer = None
+        self._lock = threading.Lock()
+
+    def __call__(self, message):
+        """Show a progress line (after the previous one, if it is still pending)."""
+        with self._lock:
+            self._flush_locked()
+            self._pending = message
+            self._timer = threading.Timer(self.HOLD, self.flush)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _flush_locked(self):
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self._pending is not None:
+            print(self._pending, file=sys.stderr, flush=True)
+            self._pending = None
+
+    def flush(self):
+        """Print the pending line now."""
+        with self._lock:
+            self._flush_locked()
+
+    def drop(self):
+        """Forget the pending line (the command failed: its error says what happened)."""
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+            self._pending = self._timer = None
+
+
+_progress = _Progress()
+
+# Work that would not fit in memory is refused before it starts (bytes of the arrays kept).
+MAX_SIMULATED_SAMPLES = 10_000_000   # simulate: about 1 GB of columns (92 h at 30 fps)
+MAX_RENDERED_BYTES = 4 * 1024 ** 3   # render keeps every frame in memory
+VIDEO_SUFFIXES = ('.mkv', '.avi')
 
 
 def cmd_simulate(args):
@@ -56,6 +106,12 @@ def cmd_simulate(args):
 
     scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
                                                     if args.seed is not None else {}))
+    samples = args.duration * scenario.frame_rate
+    if samples > MAX_SIMULATED_SAMPLES:
+        raise CliError(f'--duration {args.duration:g} s is {samples:.3g} samples at '
+                       f'{scenario.frame_rate:g} fps, more than {MAX_SIMULATED_SAMPLES:,} '
+                       f'({MAX_SIMULATED_SAMPLES / scenario.frame_rate / 3600:.0f} h) fit in '
+                       'memory; simulate shorter records')
     _progress(f'simulating {args.duration:g} s of scenario {args.scenario!r} ...')
     record = bench.simulate(scenario, args.duration)
     columns = record.to_columns()
@@ -114,7 +170,7 @@ def _roi(text):
 
 def _track_progress(done, total):
     of = f' of {total}' if total else ''
-    print(f'tracked {done}{of} frames', file=sys.stderr, flush=True)
+    _progress(f'tracked {done}{of} frames')
 
 
 def _frame_tracking_arguments(parser):
@@ -135,23 +191,52 @@ def _frame_tracking(args):
 
 
 def cmd_track(args):
-    """Track the slider and stator marks through a video and write the position CSV."""
-    from microball_ros.core.tracking import check_scale
+    """Track the slider and stator marks through a video and write the position CSV.
+
+    With --preview, track only the first frames and draw the last one with the ROIs, the
+    learned marks and the track (a check of the set-up before a long run).
+    """
+    import itertools
+
+    from microball_ros.core.tracking import TrackerConfig, check_scale, draw_tracking
     from microball_ros.io.positions_csv import write_positions_csv
-    from microball_ros.io.video import track_video as track
+    from microball_ros.io.video import FrameSource, track_video
 
     check_scale(args.meters_per_pixel)
     if not os.path.exists(args.video):
         raise CliError(f'{args.video}: no such file or folder')
-    result = track(args.video, {'slider': args.slider_roi, 'stator': args.stator_roi},
-                   args.meters_per_pixel, fps=args.fps, exposure=args.exposure,
-                   progress=_track_progress)
-    columns = result.to_columns()
-    write_positions_csv(args.output, columns)
-    lost = {name: int(sum(1 for v in columns[f'{name}_position'] if v != v))
-            for name in ('slider', 'stator')}
-    print(f"wrote {len(columns['time'])} frames to {args.output} "
-          f"(lost: slider {lost['slider']}, stator {lost['stator']})")
+    if args.preview_frames < 1:
+        raise CliError('--preview-frames must be at least 1')
+    if args.output is None and args.preview is None:
+        raise CliError('give --output FILE.csv (or --preview FILE.png)')
+    config = TrackerConfig(polarity=args.polarity, method=args.method)
+    rois = {'slider': args.slider_roi, 'stator': args.stator_roi}
+    source = FrameSource(args.video)
+    max_frames = args.preview_frames if args.preview and not args.output else None
+    result = track_video(source, rois, args.meters_per_pixel, fps=args.fps,
+                         exposure=args.exposure, progress=_track_progress, config=config,
+                         max_frames=max_frames)
+    if args.preview:
+        import cv2
+
+        last = len(result.time) - 1
+        frame = next(itertools.islice(iter(source), last, None))
+        image = draw_tracking(frame, rois,
+                              {n: result.position_px[n][last] for n in result.names},
+                              {n: result.position_px[n] for n in result.names},
+                              {n: result.polarity.get(n, '') for n in result.names})
+        if not cv2.imwrite(args.preview, image):
+            raise CliError(f'{args.preview}: cannot write the preview image')
+        print(f'wrote {args.preview} (frame {last}; polarity: '
+              f"slider {result.polarity.get('slider', '?')}, "
+              f"stator {result.polarity.get('stator', '?')})")
+    if args.output:
+        columns = result.to_columns()
+        write_positions_csv(args.output, columns)
+        lost = {name: int(sum(1 for v in columns[f'{name}_position'] if v != v))
+                for name in ('slider', 'stator')}
+        print(f"wrote {len(columns['time'])} frames to {args.output} "
+              f"(lost: slider {lost['slider']}, stator {lost['stator']})")
     return 0
 
 
@@ -162,6 +247,16 @@ def cmd_render(args):
 
     scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
                                                     if args.seed is not None else {}))
+    if not args.output.lower().endswith(VIDEO_SUFFIXES):
+        raise CliError(f'{args.output}: a video file name must end in '
+                       f'{" or ".join(VIDEO_SUFFIXES)}')
+    config = rig.camera_for(scenario)
+    frames = args.duration * config.fps
+    size = frames * config.width * config.height
+    if size > MAX_RENDERED_BYTES:
+        raise CliError(f'--duration {args.duration:g} s is {frames:.0f} frames '
+                       f'({size / 1024 ** 3:.1f} GiB in memory); render at most '
+                       f'{MAX_RENDERED_BYTES / (config.fps * config.width * config.height):.0f} s')
     _progress(f'rendering {args.duration:g} s of scenario {args.scenario!r} ...')
     rendered, _ = rig.render_bench(scenario, args.duration)
     codec = video.LOSSLESS_CODEC if args.lossless else video.LOSSY_CODEC
@@ -193,11 +288,17 @@ def cmd_experiment(args):
     bench.get_scenario(args.scenario)
     try:
         monitor = run_experiment(args.scenario, args.duration, args.speed, progress=_progress,
-                                 output=args.output, domain_id=args.domain_id)
+                                 output=args.output, domain_id=args.domain_id,
+                                 params_file=args.params)
     except NodeCrashed as error:
+        _progress.flush()
         print(f'microball experiment: {error}', file=sys.stderr)
         return 1
-    for line in summary_lines(monitor, args.scenario):
+    lines = summary_lines(monitor, args.scenario)
+    if not monitor.windows or not monitor.models:
+        raise CliError(f'{lines[0]}' + (f' (the bag {args.output} was recorded)'
+                                        if args.output else ''))
+    for line in lines:
         print(line)
     if args.output:
         print(f'recorded every topic into {args.output}')
@@ -335,6 +436,7 @@ def cmd_reprocess(args):
         counts = reprocess(args.bag, args.output, progress=_progress,
                            tracking=_frame_tracking(args))
     except NodeCrashed as error:
+        _progress.flush()
         print(f'microball reprocess: {error}', file=sys.stderr)
         return 1
     for topic in sorted(counts):
@@ -369,6 +471,8 @@ def cmd_reindex(args):
 
 def build_parser():
     """Build the argument parser of every sub-command."""
+    from microball_ros.core.bench import scenario_names
+
     parser = _Parser(
         prog='microball',
         description='Measure and model dynamic friction in MEMS microball bearings '
@@ -380,7 +484,7 @@ def build_parser():
         'simulate', help='positions from the bench model, no camera',
         description='Simulate the crank-slider rig and write stator and slider positions.')
     simulate.add_argument('--scenario', default='paper',
-                          help='scenario preset (default: paper; see --list-scenarios)')
+                          help=f'scenario preset: {", ".join(scenario_names())} (default: paper)')
     simulate.add_argument('--duration', type=_positive_float, default=20.0,
                           help='seconds of steady oscillation to record (default: 20)')
     simulate.add_argument('--output', required=True, help='position CSV to write')
@@ -401,6 +505,9 @@ def build_parser():
                             help='simulation speed factor; != 1 publishes /clock and the '
                                  'nodes use sim time (default: 1, real time)')
     experiment.add_argument('--output', help='bag directory to record every topic into')
+    experiment.add_argument('--params', metavar='FILE',
+                            help="ROS 2 parameters file (config/microball.yaml's form); its "
+                                 "values override the scenario's per node")
     experiment.add_argument('--domain-id', type=int, metavar='N',
                             help='ROS domain to run in (default: a free one; one another '
                                  'microball run holds is refused)')
@@ -515,7 +622,20 @@ def build_parser():
     track.add_argument('--exposure', type=_positive_float, default=None,
                        help='exposure time, s, for the mid-exposure stamps (default: half '
                             'the frame period)')
-    track.add_argument('--output', required=True, help='position CSV to write')
+    track.add_argument('--polarity', choices=['auto', 'dark', 'bright'], default='auto',
+                       help='marks darker or brighter than their plate (default: auto, '
+                            'learned from the video)')
+    track.add_argument('--method', choices=['auto', 'template'], default='auto',
+                       help="'auto': the mark's contrast centroid (default); 'template': a "
+                            'template learned from the video, for textured plates '
+                            '(experimental, slower)')
+    track.add_argument('--output', help='position CSV to write (time, positions, quality, '
+                                        'sigma)')
+    track.add_argument('--preview', metavar='FILE.png',
+                       help='draw ROIs, learned marks and track on a frame into this PNG; '
+                            'without --output only the first --preview-frames are tracked')
+    track.add_argument('--preview-frames', type=int, default=90, metavar='N',
+                       help='frames tracked for a preview without --output (default 90)')
     track.set_defaults(func=cmd_track)
 
     render = commands.add_parser(
@@ -551,14 +671,19 @@ def main(argv=None):
     try:
         return args.func(args)
     except MicroballError as error:
+        _progress.drop()
         return _refuse(args.command, str(error))
     except OSError as error:
         if error.filename is None:  # not about a file the user named: a bug
             raise
+        _progress.drop()
         return _refuse(args.command, f'{error.filename}: {error.strerror or error}')
     except KeyboardInterrupt:
+        _progress.drop()
         print(f'microball {args.command}: interrupted', file=sys.stderr)
         return EXIT_INTERRUPTED
+    finally:
+        _progress.drop()
 
 
 if __name__ == '__main__':

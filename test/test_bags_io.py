@@ -423,7 +423,8 @@ def test_bag_written_by_rosbags_opens_and_analyses(tmp_path):
             message = make[TYPES[POSITIONS]](
                 header=header, frame_index=int(i), slider_position=float(slider[i]),
                 stator_position=2e-3, slider_quality=np.float32(0.75),
-                stator_quality=np.float32(1.0), slider_valid=bool(i != 40), stator_valid=True)
+                stator_quality=np.float32(1.0), slider_valid=bool(i != 40), stator_valid=True,
+                slider_sigma=1e-7, stator_sigma=1e-7)
             writer.write(connection, int(stamp) + 10, store.serialize_cdr(message,
                                                                           TYPES[POSITIONS]))
     bag = open_bag(str(directory))

@@ -29,8 +29,10 @@ from microball_ros.nodes.recorder import Recorder
 
 
 def _positions(n):
+    # Finite sigmas: messages are compared with ==, and NaN never equals NaN.
     return [conversions.tracked_positions(1.0 + k / 30, k, 1e-3 * math.sin(k / 3),
-                                          1e-3 * math.cos(k / 3), 1.0, 0.5) for k in range(n)]
+                                          1e-3 * math.cos(k / 3), 1.0, 0.5, slider_sigma=1e-7,
+                                          stator_sigma=2e-7) for k in range(n)]
 
 
 def test_recorder_writes_received_bytes_and_player_replays_them_lockstep(ros_context, tmp_path):

@@ -76,11 +76,16 @@ def test_a_hidden_mark_leaves_empty_cells_and_is_reacquired(paper_video, tmp_pat
     output = tmp_path / 'tracked.csv'
     assert main(_track_args(video, str(images), str(output)) + ['--fps', '30']) == 0
     lines = output.read_text().splitlines()
-    assert lines[0] == 'time,stator_position,slider_position,slider_quality,stator_quality'
+    assert lines[0] == ('time,stator_position,slider_position,slider_quality,stator_quality,'
+                        'slider_sigma,stator_sigma')
     rows = [line.split(',') for line in lines[1:]]
     assert len(rows) == 120
     lost = [k for k, row in enumerate(rows) if row[2] == '']
     assert lost == list(range(40, 46))
+    # The standard error is empty exactly where the position is, and sub-pixel elsewhere.
+    assert [k for k, row in enumerate(rows) if row[5] == ''] == lost
+    scale = video.config.meters_per_pixel
+    assert all(0 < float(row[5]) / scale < 0.2 for k, row in enumerate(rows) if k not in lost)
     assert all(float(rows[k][3]) < 0.5 for k in lost)
     assert all(row[1] != '' for row in rows)
     assert float(rows[46][3]) > 0.5
@@ -114,3 +119,27 @@ def test_bad_track_input_gives_one_line_and_exit_2(paper_video, tmp_path, change
     lines = [line for line in result.stderr.splitlines() if not line.startswith('tracked ')]
     assert len(lines) == 1 and message in lines[0], result.stderr
     assert not (tmp_path / 'out.csv').exists()
+
+
+def test_polarity_and_preview(paper_video, tmp_path):
+    _, path, video = paper_video
+    preview = tmp_path / 'preview.png'
+    args = _track_args(video, path, str(tmp_path / 'out.csv'))
+    at = args.index('--output')
+    del args[at:at + 2]
+    assert main(args + ['--preview', str(preview), '--preview-frames', '30']) == 0
+    import cv2
+
+    image = cv2.imread(str(preview))
+    assert image.shape == (480, 720, 3)
+    x, y, w, h = video.rois['slider']
+    assert tuple(image[y, x + w // 2]) == (255, 128, 0)  # the ROI box is drawn
+    assert not (tmp_path / 'out.csv').exists()  # a preview only: no CSV
+    # Forcing the wrong polarity finds no dark mark's twin: every sample is lost.
+    bright = tmp_path / 'bright.csv'
+    assert main(_track_args(video, path, str(bright)) + ['--polarity', 'bright']) == 0
+    record = read_positions_csv(str(bright))
+    assert np.isnan(record.slider_position).mean() > 0.9
+    result = _run('track', path, '--slider-roi', '1,1,40,10', '--stator-roi', '1,20,40,10',
+                  '--meters-per-pixel', '1e-6', '--polarity', 'grey', '--output', 'x.csv')
+    assert result.returncode == 2 and 'polarity' in result.stderr

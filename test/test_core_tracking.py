@@ -2,13 +2,10 @@
 
 from dataclasses import replace
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
-from microball_ros.core import tracking
 from microball_ros.core.camera import CameraConfig, SyntheticCamera, render_frames
 from microball_ros.core.errors import InputError
 from microball_ros.core.motion import paper_motion
@@ -211,7 +208,8 @@ def test_streaming_equals_batch_and_csv_has_empty_cells(tmp_path):
     path = tmp_path / 'tracked.csv'
     write_positions_csv(str(path), batch.to_columns())
     header = path.read_text().splitlines()[0]
-    assert header == 'time,stator_position,slider_position,slider_quality,stator_quality'
+    assert header == ('time,stator_position,slider_position,slider_quality,stator_quality,'
+                      'slider_sigma,stator_sigma')
     record = read_positions_csv(str(path))
     assert np.isnan(record.slider_position[3]) and np.isfinite(record.slider_position[2])
     np.testing.assert_allclose(record.stator_position, batch.position['stator'])
@@ -299,17 +297,3 @@ def test_rois_are_found_automatically(moving):
         assert rms(result.position_px[plate] - getattr(video.truth, plate).pixel_mean) < 0.1
     with pytest.raises(InputError, match='no marks'):
         detect_rois(np.full((3, 48, 64), 100, np.uint8))
-
-
-def test_moved_io_names_resolve_from_the_old_path_without_loading_io_on_import():
-    code = ('import sys\n'
-            'import microball_ros.core.tracking as tracking\n'
-            "print('microball_ros.io.video' in sys.modules)\n"
-            'from microball_ros.core.tracking import FrameSource, image_to_gray\n'
-            'from microball_ros.io import video\n'
-            'print(FrameSource is video.FrameSource, image_to_gray is video.image_to_gray)\n')
-    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                            check=True)
-    assert result.stdout.split() == ['False', 'True', 'True']
-    with pytest.raises(AttributeError):
-        tracking.__getattr__('no_such_name')

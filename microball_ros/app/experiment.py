@@ -28,6 +28,7 @@ import yaml
 
 from microball_ros.app.isolation import ForeignPublisherCheck, IsolationError, claim_domain
 from microball_ros.core import bench, rig
+from microball_ros.nodes.camera_tracker import reliable_images
 from microball_ros.nodes.common import DATA_QOS
 
 NODES = ('servo_commander', 'bench_simulator', 'camera_tracker', 'three_stage_estimator',
@@ -45,13 +46,50 @@ def _die_with_parent():
     libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
-def node_parameters(scenario_name, duration, speed, output=None):
+def node_parameters(scenario_name, duration, speed, output=None, params_file=None):
     """Return node name -> parameter dict for an experiment on the named scenario.
 
     With ``output`` a recorder joins, recording every topic, and the bag's metadata keeps the
     tracker's, estimator's and identifier's parameters (for ``microball reprocess``, and to
-    track the frames of a bag cut down to them).
+    track the frames of a bag cut down to them). ``params_file`` is a ROS 2 parameters file
+    (config/microball.yaml's form: node name -> ros__parameters); its values override the
+    scenario's per node, except the run control the experiment's own options set (RUN_CONTROL).
+    A file that is missing, not such YAML, or names an unknown node or parameter raises
+    InputError.
     """
+    import importlib
+
+    from microball_ros.core.errors import InputError
+
+    overrides = {}
+    if params_file:
+        try:
+            with open(params_file) as handle:
+                loaded = yaml.safe_load(handle)
+        except OSError as error:
+            raise InputError(f'{params_file}: {error.strerror}') from None
+        except yaml.YAMLError:
+            raise InputError(f'{params_file}: not YAML') from None
+        if not isinstance(loaded, dict) or not all(
+                isinstance(v, dict) and isinstance(v.get('ros__parameters'), dict)
+                for v in loaded.values()):
+            raise InputError(f'{params_file}: not a ROS 2 parameters file (node name -> '
+                             'ros__parameters)')
+        for key, section in loaded.items():
+            name = str(key).lstrip('/')
+            known = NODES + ('recorder', 'camera_source')
+            if name not in known:
+                raise InputError(f'{params_file}: unknown node {key!r}; known: '
+                                 f'{", ".join(known)}')
+            declared = importlib.import_module(f'microball_ros.nodes.{name}').PARAMS
+            flat = flatten_parameters(section['ros__parameters'])
+            unknown = [p for p in flat if p not in declared and p != 'use_sim_time'
+                       and not p.startswith('qos_overrides.')]
+            if unknown:
+                raise InputError(f'{params_file}: {name} has no parameter '
+                                 f'{", ".join(sorted(unknown))}')
+            overrides[name] = {k: v for k, v in flat.items()
+                               if k not in RUN_CONTROL.get(name, ())}
     scenario = bench.get_scenario(scenario_name)
     rois = rig.suggested_rois(scenario)
     sim_time = {'use_sim_time': True} if speed != 1.0 else {}
@@ -69,12 +107,36 @@ def node_parameters(scenario_name, duration, speed, output=None):
         'three_stage_estimator': {'exposure': rig.camera_for(scenario).exposure, **sim_time},
         'friction_identifier': dict(sim_time),
     }
+    # Inside a run every frame must reach the tracker even when it falls seconds behind.
+    for name, role in (('bench_simulator', 'publisher'), ('camera_tracker', 'subscription')):
+        parameters[name].update(flatten_parameters({'qos_overrides': reliable_images(role)}))
+    for name in parameters:
+        parameters[name].update(overrides.get(name, {}))
     if output:
         kept = {f'microball.{name}': yaml.safe_dump(
             {k: v for k, v in parameters[name].items() if k != 'use_sim_time'})
             for name in ('camera_tracker', 'three_stage_estimator', 'friction_identifier')}
-        parameters['recorder'] = {'output': output, 'custom_data': yaml.safe_dump(kept)}
+        parameters['recorder'] = {**overrides.get('recorder', {}), 'output': output,
+                                  'custom_data': yaml.safe_dump(kept)}
     return parameters
+
+
+# Parameters the experiment's own options set (a --params file cannot change them).
+RUN_CONTROL = {'bench_simulator': ('scenario', 'speed', 'publish_clock', 'duration',
+                                   'wait_for_subscribers'),
+               'recorder': ('output', 'custom_data'),
+               'camera_tracker': ('video_path', 'wait_for_subscribers')}
+
+
+def flatten_parameters(mapping, prefix=''):
+    """Return nested ros__parameters as dotted name -> value (as ROS 2 reads them)."""
+    flat = {}
+    for key, value in mapping.items():
+        if isinstance(value, dict):
+            flat.update(flatten_parameters(value, f'{prefix}{key}.'))
+        else:
+            flat[f'{prefix}{key}'] = value
+    return flat
 
 
 # Every subscription the pipeline needs before the bench's first frame: topic -> count
@@ -111,6 +173,10 @@ class NodeProcesses:
         """Raise NodeCrashed naming the first node that has exited."""
         for name, (proc, _) in self.procs.items():
             code = proc.poll()
+            if code is not None and code < 0:  # killed from outside: its log is not the cause
+                raise NodeCrashed(f'node {name} exited with code {code} (killed by '
+                                  f'{signal.Signals(-code).name}); its log: '
+                                  f'{os.path.join(self.log_dir, name + ".log")}')
             if code is not None:
                 raise NodeCrashed(f'node {name} exited with code {code}: {self.last_line(name)}')
 
@@ -191,8 +257,9 @@ class _Monitor:
 
     def progress(self, fps):
         """Return a one-line progress report."""
-        line = (f'simulated {self.frames / fps:5.1f} s: {self.frames} frames, '
-                f'{self.tracked} tracked, {len(self.windows)} windows')
+        windows = len(self.windows)
+        line = (f'simulated {self.frames / fps:5.1f} s: {self.tracked} frames tracked, '
+                f'{windows} window{"" if windows == 1 else "s"}')
         if self.models:
             model = self.models[-1]
             line += f', model A = {model.a:.3g} m/s^2, alpha = {model.alpha:.3g} s/m'
@@ -228,7 +295,7 @@ def summary_lines(monitor, scenario_name):
 
 
 def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=3.0,
-                   output=None, domain_id=None):
+                   output=None, domain_id=None, params_file=None):
     """Run the experiment; return the monitor (counts, windows, models) when it is done.
 
     Done means: the bench has published every frame of ``duration``, each was tracked, and
@@ -241,7 +308,7 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
     scenario = bench.get_scenario(scenario_name)
     fps = rig.camera_for(scenario).fps
     expected_frames = math.floor(duration * fps + 1e-9)
-    parameters = node_parameters(scenario_name, duration, speed, output)
+    parameters = node_parameters(scenario_name, duration, speed, output, params_file)
     ready = _READY_RECORDING if output else _READY
     claim = claim_domain(domain_id)
     env = claim.environment()

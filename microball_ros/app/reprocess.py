@@ -25,13 +25,14 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 import yaml
 
-from microball_ros.app.experiment import NodeCrashed, NodeProcesses
+from microball_ros.app.experiment import NodeCrashed, NodeProcesses, flatten_parameters
 from microball_ros.app.play import Player, use_lockstep_profile
 from microball_ros.core.windowing import PositionWindower, Window, WindowSettings
 from microball_ros.io import fingerprint
 from microball_ros.io.bags.reader import IMAGES_TOPIC, BagError, open_bag, recorded_parameters
 from microball_ros.io.compare import BYTE_IDENTICAL, NOT_COMPARED, compare_bags
 from microball_ros.io.frames import TRACKER, tracked_frames, tracker_parameters
+from microball_ros.nodes.camera_tracker import reliable_images
 from microball_ros.nodes.recorder import Recorder
 from microball_ros.nodes.three_stage_estimator import PARAMS as ESTIMATOR_PARAMS
 
@@ -113,7 +114,9 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
                                                                                *OUTPUTS]
         # The tracker listens only once the estimator and the recorder receive its positions.
         parameters[TRACKER] = {**tracker_parameters(bag, **(tracking or {})),
-                               'wait_for_subscribers': 2}
+                               'wait_for_subscribers': 2,
+                               **flatten_parameters(
+                                   {'qos_overrides': reliable_images('subscription')})}
         values = parameters[TRACKER]
         progress(f"{bag_path} has only camera frames: tracking them through camera_tracker "
                  f"(slider ROI {values['slider_roi']}, stator ROI {values['stator_roi']}, "

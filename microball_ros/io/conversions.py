@@ -24,8 +24,8 @@ def nanoseconds_to_stamp(nanoseconds):
 
 
 def tracked_positions(stamp, frame_index, slider, stator, slider_quality, stator_quality,
-                      frame_id='camera'):
-    """Build a TrackedPositions message; a NaN position is marked invalid."""
+                      frame_id='camera', slider_sigma=math.nan, stator_sigma=math.nan):
+    """Build a TrackedPositions message; a NaN position is marked invalid (and its sigma NaN)."""
     msg = TrackedPositions()
     msg.header.stamp = stamp if isinstance(stamp, Time) else seconds_to_stamp(stamp)
     msg.header.frame_id = frame_id
@@ -36,6 +36,8 @@ def tracked_positions(stamp, frame_index, slider, stator, slider_quality, stator
     msg.stator_quality = float(stator_quality)
     msg.slider_valid = bool(np.isfinite(slider))
     msg.stator_valid = bool(np.isfinite(stator))
+    msg.slider_sigma = float(slider_sigma) if msg.slider_valid else math.nan
+    msg.stator_sigma = float(stator_sigma) if msg.stator_valid else math.nan
     return msg
 
 
@@ -109,7 +111,8 @@ def image_array(msg):
     """Return a sensor_msgs/Image as a grey H x W uint8 array (8-bit encodings only)."""
     from microball_ros.io.video import image_to_gray
 
-    return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+    return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data,
+                         msg.is_bigendian)
 
 
 def message_class(type_name):

@@ -70,7 +70,7 @@ def _dialect(first_line):
     return best if counts[best] else ','
 
 
-def _parse_cell(text, row_number, column, decimal_comma):
+def _parse_cell(text, row_number, column, decimal_comma, path):
     text = text.strip()
     if text == '':
         return np.nan
@@ -79,10 +79,11 @@ def _parse_cell(text, row_number, column, decimal_comma):
     try:
         value = float(text)
     except ValueError:
-        message = f'row {row_number}, column {column!r}: {text!r} is not a number'
+        message = f'{path}: row {row_number}, column {column!r}: {text!r} is not a number'
         raise RecordError(message) from None
     if not np.isfinite(value):
-        raise RecordError(f'row {row_number}, column {column!r}: {text!r} is not a finite number')
+        raise RecordError(f'{path}: row {row_number}, column {column!r}: {text!r} is not a '
+                          'finite number (leave the cell empty where a mark was lost)')
     return value
 
 
@@ -132,7 +133,7 @@ def _read_rows(handle, path):
         if len(row) != len(header):
             raise RecordError(f'{path}: row {row_number} has {len(row)} cells, '
                               f'the header has {len(header)}')
-        rows.append([_parse_cell(cell, row_number, name, delimiter != ',')
+        rows.append([_parse_cell(cell, row_number, name, delimiter != ',', path)
                      for cell, name in zip(row, header, strict=True)])
     if not rows:
         raise RecordError(f'{path}: no data rows')

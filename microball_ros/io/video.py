@@ -4,9 +4,10 @@ Owns every file the tracker reads and the synthetic camera writes, through OpenC
 ``FrameSource`` / ``iter_frames`` open a video (anything this OpenCV build decodes) or a
 folder of images (sorted by name), or wrap arrays, and yield gray 2-D frames;
 ``track_video`` tracks such a source with core.tracking (the container's frame rate unless
-one is given); ``image_to_gray`` turns the fields of a sensor_msgs/Image (8-bit encodings)
-into a gray array; ``write_video``, ``write_image_sequence`` and ``codec_available`` write
-rendered frames (FFV1 lossless or MJPG lossy, like a DV camera). Problems a user can cause (a
+one is given); ``image_to_gray`` turns the fields of a sensor_msgs/Image (mono8/16,
+bgr/rgb 8/16, Bayer 8/16) into a gray array; ``write_video``, ``write_image_sequence`` and
+``codec_available`` write rendered frames (FFV1 lossless or MJPG lossy, like a DV camera).
+Problems a user can cause (a
 missing or unreadable file, an unsupported encoding) raise InputError with a one-line message.
 """
 
@@ -26,30 +27,47 @@ IMAGE_EXTENSIONS = ('.png', '.tif', '.tiff', '.bmp', '.pgm', '.ppm', '.jpg', '.j
 LOSSLESS_CODEC = 'FFV1'
 LOSSY_CODEC = 'MJPG'
 
-# 8-bit sensor_msgs/Image encodings we track: encoding -> (channels, cv2 conversion to gray).
-IMAGE_ENCODINGS = {'mono8': (1, None), '8UC1': (1, None),
-                   'bgr8': (3, cv2.COLOR_BGR2GRAY), 'rgb8': (3, cv2.COLOR_RGB2GRAY),
-                   'bgra8': (4, cv2.COLOR_BGRA2GRAY), 'rgba8': (4, cv2.COLOR_RGBA2GRAY)}
+# sensor_msgs/Image encodings we track: encoding -> (channels, bytes per channel, cv2
+# conversion to gray). OpenCV names a Bayer pattern by its second row's second and third
+# pixels, ROS by the first row's: ROS bayer_rggb is OpenCV's BayerBG, and so on (as cv_bridge).
+_BAYER = {'rggb': cv2.COLOR_BayerBG2GRAY, 'bggr': cv2.COLOR_BayerRG2GRAY,
+          'gbrg': cv2.COLOR_BayerGR2GRAY, 'grbg': cv2.COLOR_BayerGB2GRAY}
+IMAGE_ENCODINGS = {'mono8': (1, 1, None), '8UC1': (1, 1, None),
+                   'mono16': (1, 2, None), '16UC1': (1, 2, None),
+                   'bgr8': (3, 1, cv2.COLOR_BGR2GRAY), 'rgb8': (3, 1, cv2.COLOR_RGB2GRAY),
+                   'bgra8': (4, 1, cv2.COLOR_BGRA2GRAY), 'rgba8': (4, 1, cv2.COLOR_RGBA2GRAY),
+                   'bgr16': (3, 2, cv2.COLOR_BGR2GRAY), 'rgb16': (3, 2, cv2.COLOR_RGB2GRAY),
+                   **{f'bayer_{p}{b}': (1, b // 8, code) for p, code in _BAYER.items()
+                      for b in (8, 16)}}
 
 
 def image_to_gray(encoding: str, height: int, width: int, step: int,
-                  data: Any) -> np.ndarray:
-    """Return the pixels of a sensor_msgs/Image (its fields) as a gray H x W uint8 array.
+                  data: Any, is_bigendian: int = 0) -> np.ndarray:
+    """Return the pixels of a sensor_msgs/Image (its fields) as a gray H x W array.
 
-    Works on the fields of any Image object (rclpy's or rosbags'); InputError (one line) for
-    an encoding that is not 8-bit or data shorter than height x step.
+    8-bit encodings give uint8, 16-bit ones (mono16, bgr16, bayer_*16, ...) uint16; Bayer
+    mosaics are demosaiced by OpenCV. Works on the fields of any Image object (rclpy's or
+    rosbags'); InputError (one line) for an unsupported encoding or data shorter than
+    height x step.
     """
     if encoding not in IMAGE_ENCODINGS:
         raise InputError(f'unsupported image encoding {encoding!r} '
                          f'(supported: {", ".join(IMAGE_ENCODINGS)})')
-    channels, code = IMAGE_ENCODINGS[encoding]
+    channels, size, code = IMAGE_ENCODINGS[encoding]
     buffer = np.frombuffer(data, dtype=np.uint8)
-    if step < width * channels or buffer.size < height * step:
+    if step < width * channels * size or buffer.size < height * step:
         raise InputError(f'{encoding} image {width} x {height}, step {step}: '
                          f'{buffer.size} bytes of data is too short')
-    rows = buffer[:height * step].reshape(height, step)
-    pixels = rows[:, :width * channels].reshape(height, width, channels)
-    return pixels[:, :, 0] if code is None else cv2.cvtColor(pixels, code)
+    rows = buffer[:height * step].reshape(height, step)[:, :width * channels * size]
+    if size == 2:
+        rows = np.ascontiguousarray(rows).view('>u2' if is_bigendian else '<u2').astype(
+            np.uint16)
+    pixels = rows.reshape(height, width, channels)
+    if code is None:
+        return np.ascontiguousarray(pixels[:, :, 0])
+    if channels == 1:
+        return cv2.cvtColor(np.ascontiguousarray(pixels[:, :, 0]), code)
+    return cv2.cvtColor(pixels, code)
 
 
 class FrameSource:

@@ -5,7 +5,9 @@ and the slider (the scenario's friction law); renders frames with the synthetic 
 publishes them on /camera/image_raw (mono8, header.stamp = mid-exposure) with the ground truth
 on /bench/ground_truth. Real time by default; with ``speed`` != 1 it runs that much faster
 and publishes /clock (the other nodes then set use_sim_time). A real camera driver publishing
-sensor_msgs/Image, or a real servo, replaces it without touching the other nodes.
+sensor_msgs/Image, or a real servo, replaces it without touching the other nodes. A servo
+command with a NaN or infinite speed, a negative ramp, a stamp going backwards, or from a
+publisher beyond ``expected_publishers`` is dropped and counted on /diagnostics.
 """
 
 import math
@@ -14,13 +16,25 @@ import sys
 from microball_msgs.msg import BenchState, ServoCommand
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import Image
 
 from microball_ros.core import bench
 from microball_ros.core.rig import RigStepper
 from microball_ros.io import conversions
-from microball_ros.nodes.common import DATA_QOS, LATCHED_QOS, Param, declare_parameters, run
+from microball_ros.nodes.common import (
+    DATA_QOS,
+    IMAGE_QOS,
+    LATCHED_QOS,
+    InputGuard,
+    NodeDiagnostics,
+    Param,
+    create_publisher,
+    declare_parameters,
+    non_finite,
+    run,
+)
 
 PARAMS = {
     'scenario': Param('paper', 'bench scenario: ' + ', '.join(bench.scenario_names()),
@@ -37,7 +51,20 @@ PARAMS = {
                                      'truth each have this many matched subscribers and a '
                                      'servo command has arrived (a reproducible start); 0 '
                                      'starts at once', 0, 100),
+    'expected_publishers': Param(1, 'publishers of servo/command this node accepts commands '
+                                    "from (the first ones heard); more are another rig's, "
+                                    'dropped; 0 accepts any number', 0, 100, read_only=True),
 }
+
+
+def command_problem(msg):
+    """Return None, or (kind, detail) for a ServoCommand no working servo_commander sends."""
+    bad = non_finite(msg, ('angular_velocity', 'frequency', 'ramp_time'))
+    if bad:
+        return ('NaN command', f'{", ".join(bad)} not finite')
+    if msg.ramp_time < 0:
+        return ('negative ramp time', f'{msg.ramp_time:g} s')
+    return None
 
 
 def check_parameters(values):
@@ -61,10 +88,16 @@ class BenchSimulator(Node):
                                motor_lag=values['motor_lag'])
         self._law = scenario.law.name
         self._servo = None
-        self._images = self.create_publisher(Image, 'camera/image_raw', DATA_QOS)
-        self._truth = self.create_publisher(BenchState, 'bench/ground_truth', DATA_QOS)
-        self._clock = self.create_publisher(ClockMsg, '/clock', 10)
-        self.create_subscription(ServoCommand, 'servo/command', self._on_command, LATCHED_QOS)
+        self._images = create_publisher(self, Image, 'camera/image_raw', IMAGE_QOS)
+        self._truth = create_publisher(self, BenchState, 'bench/ground_truth', DATA_QOS)
+        # Not self._clock: that is the Node's own clock.
+        self._clock_publisher = create_publisher(self, ClockMsg, '/clock',
+                                                 QoSProfile(depth=10))
+        self.diagnostics = NodeDiagnostics(self)
+        self.guard = InputGuard(self, self.diagnostics, 'servo/command',
+                                expected=values['expected_publishers'],
+                                check=command_problem, allow_equal_stamps=True)
+        self.guard.subscribe(ServoCommand, self._on_command, LATCHED_QOS)
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._timer = None
         self._start_timer()
@@ -109,9 +142,11 @@ class BenchSimulator(Node):
         frame_id = self._values['frame_id']
         stamp = conversions.seconds_to_stamp(frame.stamp)
         self._images.publish(conversions.image_message(frame.image, stamp, frame_id))
+        self.diagnostics.count('frames published')
         self._truth.publish(self._bench_state(frame, stamp, frame_id))
         if self._values['publish_clock']:
-            self._clock.publish(ClockMsg(clock=conversions.seconds_to_stamp(self._rig.time)))
+            self._clock_publisher.publish(
+                ClockMsg(clock=conversions.seconds_to_stamp(self._rig.time)))
 
     def _bench_state(self, frame, stamp, frame_id):
         state = frame.state

@@ -3,7 +3,9 @@
 Accumulates the (v_rel, a_slider) samples of every window (across sweep frequencies), fits the
 Langevin law by least squares with profile-likelihood intervals (core.friction), and validates
 it as in the paper's Fig. 9 by simulating the slider under the stator motion of the newest
-window.
+window. Estimates no working estimator sends are dropped and counted per kind on /diagnostics
+(common.InputGuard): arrays of different lengths or with NaN or infinite values, a stamp that
+does not move forward, a message from a publisher beyond ``expected_publishers``.
 """
 
 import sys
@@ -15,7 +17,16 @@ from std_msgs.msg import Header
 
 from microball_ros.core import friction
 from microball_ros.io import conversions
-from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
+from microball_ros.nodes.common import (
+    DATA_QOS,
+    InputGuard,
+    NodeDiagnostics,
+    Param,
+    create_publisher,
+    declare_parameters,
+    non_finite,
+    run,
+)
 from microball_ros.nodes.worker import OrderedWorker
 
 PARAMS = {
@@ -23,7 +34,25 @@ PARAMS = {
     'refit_every': Param(1, 'refit after every N new windows', 1, 10000),
     'memoryless_only': Param(False, 'fit only windows the memory test called memoryless'),
     'validation_step': Param(0.001, 'RK4 step of the Fig. 9 validation, s', 1e-5, 0.01),
+    'expected_publishers': Param(1, 'publishers of estimation/derivatives this node accepts '
+                                    'messages from (the first ones heard); more are another '
+                                    "rig's, dropped; 0 accepts any number", 0, 100,
+                                 read_only=True),
 }
+
+ESTIMATE_ARRAYS = ('time', 'relative_velocity', 'slider_acceleration')
+ESTIMATE_SCALARS = ('fundamental_frequency', 'phase_difference')
+
+
+def estimate_problem(msg):
+    """Return None, or (kind, detail) for a DerivativeEstimate no working estimator sends."""
+    lengths = {name: len(getattr(msg, name)) for name in ESTIMATE_ARRAYS}
+    if len(set(lengths.values())) != 1 or not lengths['time']:
+        return ('malformed estimate', ', '.join(f'{k} {n}' for k, n in lengths.items()))
+    bad = non_finite(msg, ESTIMATE_ARRAYS + ESTIMATE_SCALARS)
+    if bad:
+        return ('NaN estimate', f'{", ".join(bad)} not finite')
+    return None
 
 
 def check_parameters(values):
@@ -54,10 +83,13 @@ class FrictionIdentifier(Node):
             lambda ps: self._values.update({p.name: p.value for p in ps if p.name in PARAMS}))
         self._windows = []
         self._since_fit = 0
-        self._publisher = self.create_publisher(FrictionModel, 'friction/model', DATA_QOS)
+        self._publisher = create_publisher(self, FrictionModel, 'friction/model', DATA_QOS)
         self._worker = OrderedWorker('identifier', self._on_job_error)
-        self.create_subscription(DerivativeEstimate, 'estimation/derivatives', self._on_estimate,
-                                 DATA_QOS)
+        self.diagnostics = NodeDiagnostics(self)
+        self.guard = InputGuard(self, self.diagnostics, 'estimation/derivatives',
+                                expected=self._values['expected_publishers'],
+                                check=estimate_problem)
+        self.guard.subscribe(DerivativeEstimate, self._on_estimate, DATA_QOS)
 
     def _on_estimate(self, msg):
         if self._values['memoryless_only'] and not msg.memoryless:
@@ -85,7 +117,7 @@ class FrictionIdentifier(Node):
                                                            len(windows)))
 
     def _on_job_error(self, job, error):
-        self.get_logger().error(f'fit failed: {error}')
+        self.diagnostics.error(f'fit failed: {error}')
 
     def destroy_node(self):
         """Finish the queued fits, then destroy the node."""

@@ -7,7 +7,8 @@ default 'simulated' driver leaves the motion to bench_simulator, which listens t
 topic; 'dynamixel' drives a Dynamixel X-series servo in velocity control (io.dynamixel), with
 the ramp done here in steps of 1/RAMP_RATE s and the measured crank speed published on
 servo/state (sensor_msgs/JointState, joint 'crank', velocity in rad/s) at the heartbeat rate.
-On ~/stop, on shutdown (SIGINT, SIGTERM) and on any error the motor is stopped.
+On ~/stop, on shutdown (SIGINT, SIGTERM) and on any error the motor is stopped. Its health is
+on /diagnostics: commands sent, and the driver's fault as the last error.
 """
 
 import sys
@@ -15,13 +16,21 @@ import sys
 from microball_msgs.msg import ServoCommand
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from microball_ros.core.errors import InputError
 from microball_ros.core.servo import Ramp, ServoDriver, Sweep
 from microball_ros.io.dynamixel import DynamixelDriver
-from microball_ros.nodes.common import LATCHED_QOS, Param, declare_parameters, run
+from microball_ros.nodes.common import (
+    LATCHED_QOS,
+    NodeDiagnostics,
+    Param,
+    create_publisher,
+    declare_parameters,
+    run,
+)
 
 TWO_PI = 6.283185307179586
 RAMP_RATE = 20.0            # goal updates per second while a hardware driver ramps, Hz
@@ -104,8 +113,10 @@ class ServoCommander(Node):
             raise InputError(f'{self.get_name()}: bad parameters: {problem}')
         self.add_on_set_parameters_callback(self._check_reach)
         self.add_post_set_parameters_callback(self._on_parameters_set)
-        self._publisher = self.create_publisher(ServoCommand, 'servo/command', LATCHED_QOS)
-        self._state_publisher = self.create_publisher(JointState, 'servo/state', 10)
+        self._publisher = create_publisher(self, ServoCommand, 'servo/command', LATCHED_QOS)
+        self._state_publisher = create_publisher(self, JointState, 'servo/state',
+                                                 QoSProfile(depth=10))
+        self.diagnostics = NodeDiagnostics(self, hardware_id=self._values['port'])
         self._enabled = bool(self._values['autostart'])
         self._frequency = self._values['frequency']
         self._sweep_start = None
@@ -156,6 +167,7 @@ class ServoCommander(Node):
             self._ramp_timer.reset()
             self._drive()               # the ramp timer takes the later steps
         self._publisher.publish(msg)
+        self.diagnostics.count('commands sent')
 
     def _drive(self):
         """Give the driver the ramped frequency when it changed (ramp timer and _send)."""
@@ -177,7 +189,9 @@ class ServoCommander(Node):
             return
         self._enabled, self._sweep_start, self._driven = False, None, None
         self._ramp = Ramp()
+        self.diagnostics.error(f'servo stopped: {self._driver.fault}', log=False)  # logged
         self._publisher.publish(self._command())
+        self.diagnostics.count('commands sent')
 
     def _publish_state(self):
         velocity = self._driver.crank_velocity()

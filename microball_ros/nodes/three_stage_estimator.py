@@ -3,7 +3,10 @@
 Windows are whole numbers of stator periods (core.windowing); each gets velocity and
 acceleration by the chosen method (three-stage by default) and the memory test
 (core.memory.relative_memory_test). Invalid samples and frame gaps are never filled in: the
-stretch around them is skipped with a logged reason.
+stretch around them is skipped with a logged reason (and counted as 'lost marks' on
+/diagnostics). Input that no working tracker sends is dropped and counted per kind
+(common.InputGuard): a position that is NaN or infinite but flagged valid, a stamp or frame
+index that does not move forward, a message from a publisher beyond ``expected_publishers``.
 """
 
 import sys
@@ -15,7 +18,16 @@ from std_msgs.msg import Header
 from microball_ros.core import estimation, memory
 from microball_ros.core.windowing import PositionWindower, Skip, WindowSettings
 from microball_ros.io import conversions
-from microball_ros.nodes.common import DATA_QOS, Param, declare_parameters, run
+from microball_ros.nodes.common import (
+    DATA_QOS,
+    InputGuard,
+    NodeDiagnostics,
+    Param,
+    create_publisher,
+    declare_parameters,
+    non_finite,
+    run,
+)
 from microball_ros.nodes.worker import OrderedWorker
 
 PARAMS = {
@@ -35,7 +47,22 @@ PARAMS = {
                                  0.001, 0.5),
     'memory_k': Param(3.0, 'memory test: sigmas of phase uncertainty allowed', 0.0, 100.0),
     'memory_margin': Param(0.1, 'memory test: bias margin around pi, rad', 0.0, 3.1416),
+    'expected_publishers': Param(1, 'publishers of tracking/positions this node accepts '
+                                    'messages from (the first ones heard); more are another '
+                                    "rig's, dropped; 0 accepts any number", 0, 100,
+                                 read_only=True),
 }
+
+
+def position_problem(msg):
+    """Return None, or (kind, detail) for a TrackedPositions no working tracker sends."""
+    flagged = [name for name, valid in (('slider_position', msg.slider_valid),
+                                        ('stator_position', msg.stator_valid)) if valid]
+    bad = non_finite(msg, flagged)
+    if bad:
+        return ('NaN position', f'{", ".join(bad)} not finite but flagged valid '
+                                f'(frame {msg.frame_index})')
+    return None
 
 
 def check_parameters(values):
@@ -61,12 +88,20 @@ class ThreeStageEstimator(Node):
         self._values = declare_parameters(self, PARAMS, check_parameters)
         self.add_post_set_parameters_callback(self._on_parameters_set)
         self._windower = PositionWindower(_settings(self._values))
-        self._publisher = self.create_publisher(
-            DerivativeEstimate, 'estimation/derivatives', DATA_QOS)
+        self._publisher = create_publisher(
+            self, DerivativeEstimate, 'estimation/derivatives', DATA_QOS)
         self._worker = OrderedWorker('estimator', self._on_job_error)
-        self.create_subscription(TrackedPositions, 'tracking/positions', self._on_positions,
-                                 DATA_QOS)
+        self.diagnostics = NodeDiagnostics(self)
+        self.guard = InputGuard(self, self.diagnostics, 'tracking/positions',
+                                expected=self._values['expected_publishers'],
+                                check=position_problem, frame_index=True,
+                                on_restart=self._restart)
+        self.guard.subscribe(TrackedPositions, self._on_positions, DATA_QOS)
         self.windows_published = 0
+
+    def _restart(self):
+        """Start the windows afresh: a new tracker replaced the old one."""
+        self._windower = PositionWindower(_settings(self._values))
 
     def _on_parameters_set(self, parameters):
         self._values.update({p.name: p.value for p in parameters if p.name in PARAMS})
@@ -76,6 +111,8 @@ class ThreeStageEstimator(Node):
 
     def _on_positions(self, msg):
         valid = msg.slider_valid and msg.stator_valid
+        if not valid:
+            self.diagnostics.count('lost marks')
         stamp = conversions.stamp_to_seconds(msg.header.stamp)
         for event in self._windower.push(stamp, msg.frame_index, msg.stator_position,
                                          msg.slider_position, valid):
@@ -99,7 +136,7 @@ class ThreeStageEstimator(Node):
         self.windows_published += 1
 
     def _on_job_error(self, job, error):
-        self.get_logger().error(f'window not analysed: {error}')
+        self.diagnostics.error(f'window not analysed: {error}')
 
     def destroy_node(self):
         """Finish the queued windows, then destroy the node."""

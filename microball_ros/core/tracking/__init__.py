@@ -24,6 +24,14 @@ Per mark and frame, one module per stage (all 1-D after one pass over the ROI):
    the antisymmetric energy, band-limited interpolation); if the two disagree by more than 3
    sigma the blur is asymmetric and the centroid is kept.
 
+The polarity is 'auto' by default: the first frame the mark is found in fixes it (dark or
+bright, from the skewness of the profile, else whichever detection stands out more). The
+method 'template' (core.tracking.learned, opt-in) instead learns a template of any shape from
+the video (multi-frame deconvolution, core.tracking.template), removes a static background,
+gates the search by a motion prediction (core.tracking.predict) and fits the template smeared
+by the exposure's motion. Batch tracking primes every mark on the first frames, then tracks
+from the first frame again. ``draw_tracking`` draws ROIs, marks and track (core.tracking.draw).
+
 A failed check gives NaN and a quality below ``min_quality``: positions are never invented, and
 each frame is searched over the whole ROI, so a mark is re-acquired as soon as it returns.
 
@@ -38,9 +46,8 @@ CSV columns), ``Tracker`` (frame by frame, for a node), ``MarkTracker`` (one mar
 (input validation with one-line InputErrors).
 """
 
-from typing import Any
-
 from microball_ros.core.tracking.config import METHODS, POLARITIES, TrackerConfig
+from microball_ros.core.tracking.draw import draw_tracking
 from microball_ros.core.tracking.image import (
     Roi,
     check_roi,
@@ -57,18 +64,5 @@ from microball_ros.core.tracking.tracker import Tracker, track
 
 __all__ = ['METHODS', 'POLARITIES', 'MarkMeasurement', 'MarkTracker', 'Roi', 'TrackResult',
            'TrackedFrame', 'Tracker', 'TrackerConfig', 'check_roi', 'check_scale',
-           'detect_rois', 'gray_frames', 'parse_roi', 'symmetric_center', 'to_gray', 'track']
-
-# Names that moved to microball_ros.io.video (file and ROS-image I/O is not core). Resolved
-# on first use only, so importing the core never loads io; import them from io.video instead.
-_MOVED_TO_IO = ('FrameSource', 'iter_frames', 'image_to_gray', 'IMAGE_ENCODINGS',
-                'IMAGE_EXTENSIONS')
-
-
-def __getattr__(name: str) -> Any:
-    """Resolve a name that moved to microball_ros.io.video (old import path, still working)."""
-    if name in _MOVED_TO_IO:
-        from microball_ros.io import video
-
-        return getattr(video, name)
-    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+           'detect_rois', 'draw_tracking', 'gray_frames', 'parse_roi', 'symmetric_center',
+           'to_gray', 'track']

@@ -10,23 +10,31 @@ from dataclasses import dataclass
 
 from microball_ros.core.errors import InputError
 
-METHODS = ('auto', 'centroid', 'symmetric')
-POLARITIES = ('dark', 'bright')
+METHODS = ('auto', 'centroid', 'symmetric', 'template')
+POLARITIES = ('auto', 'dark', 'bright')
 
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Tracker tuning; the defaults suit dark etched marks on a brighter plate.
+    """Tracker tuning; the defaults suit any mark that stands out from its plate.
 
     ``method``: 'auto' (centroid, or symmetry when the mark is nearly still), 'centroid' (exact
-    for any mark shape, noisier) or 'symmetric' (marks symmetric along x, still or uniformly
-    moving only). Lengths in px; ``threshold`` is the fraction of the peak deficit that
+    for any mark shape, noisier), 'symmetric' (marks symmetric along x, still or uniformly
+    moving only) or 'template' (a template of any shape learned from the video, fitted with
+    the motion blur, gated by a motion prediction, a static background removed: for textured
+    plates; experimental, slower). Lengths in px; ``threshold`` is the fraction of the peak
+    deficit that
     delimits the mark; ``still_motion_px`` is the frame-to-frame motion below which 'auto' uses
-    symmetry (blending to the centroid at three times that).
+    symmetry (blending to the centroid at three times that) in the first detection.
+    ``polarity``: 'auto' (learned from the first frame the mark is found in), 'dark' or
+    'bright'. ``max_blur_px``: the longest motion smear expected (sizes the template grid);
+    ``template_forget``: per-frame forgetting of the learned template; ``background_rate``:
+    the rate of the static-background running mean; ``match_tolerance``: the fit residual,
+    in units of the plate's noise, above which a frame does not show the learned mark.
     """
 
     method: str = 'auto'
-    polarity: str = 'dark'
+    polarity: str = 'auto'
     baseline_degree: int = 3
     smoothing_px: int = 5
     threshold: float = 0.05
@@ -42,6 +50,12 @@ class TrackerConfig:
     area_history: int = 9
     still_motion_px: float = 1.0
     min_quality: float = 0.5
+    max_blur_px: float = 96.0
+    warmup_frames: int = 8
+    prime_frames: int = 60
+    template_forget: float = 0.98
+    background_rate: float = 1.0 / 32.0
+    match_tolerance: float = 2.0
 
     def __post_init__(self) -> None:
         """Reject inconsistent settings with a one-line message."""
@@ -55,5 +69,9 @@ class TrackerConfig:
             raise InputError('tracker baseline_degree must be in 0..5')
         if int(self.smoothing_px) < 1 or int(self.pad_px) < 0 or int(self.area_history) < 1:
             raise InputError('tracker smoothing_px, area_history must be >= 1, pad_px >= 0')
+        if not (self.max_blur_px >= 0 and 0 < self.template_forget <= 1
+                and 0 < self.background_rate <= 1 and self.match_tolerance > 0):
+            raise InputError('tracker max_blur_px must be >= 0, template_forget and '
+                             'background_rate in (0, 1], match_tolerance > 0')
         if not 0 < self.threshold < 1 or not 0 <= self.min_quality <= 1:
             raise InputError('tracker threshold must be in (0, 1), min_quality in [0, 1]')

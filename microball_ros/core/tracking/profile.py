@@ -80,6 +80,24 @@ class Baseline:
         return baseline
 
 
+def polarity_of(profile: np.ndarray, min_skew: float = 0.5) -> str | None:
+    """Return 'dark' or 'bright': the sign of the mark in a profile, or None if unclear.
+
+    A mark is a minority of the columns that stands out from a smooth plate: the skewness of
+    the profile's departure from a quadratic fitted to all its columns is negative for a dark
+    mark, positive for a bright one; None when its magnitude is below ``min_skew``.
+    """
+    u = np.linspace(-1.0, 1.0, profile.size)
+    residual = profile - np.polyval(np.polyfit(u, profile, 2), u)
+    spread = float(np.std(residual))
+    if spread <= 0:
+        return None
+    skew = float(np.mean(residual ** 3)) / spread ** 3
+    if abs(skew) < min_skew:
+        return None
+    return 'dark' if skew < 0 else 'bright'
+
+
 def relative_deficit(profile: np.ndarray, baseline: np.ndarray, polarity: str) -> np.ndarray:
     """Return the mark's relative deficit: ``1 - profile / baseline`` for dark marks."""
     if polarity == 'dark':
@@ -87,9 +105,9 @@ def relative_deficit(profile: np.ndarray, baseline: np.ndarray, polarity: str) -
     return profile / baseline - 1.0
 
 
-def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
-                         polarity: str) -> np.ndarray | None:
-    """Return the ROI's rows averaged with weights proportional to the mark's depth in each.
+def row_weights(region: np.ndarray, lo: int, hi: int, pad: int,
+                polarity: str) -> np.ndarray | None:
+    """Return weights per ROI row proportional to the mark's depth in it (sum 1), or None.
 
     The depth of a row is its mean over the mark (columns ``lo - pad`` .. ``hi + pad``)
     against its mean over flanks on both sides; None if there are no flanks or no depth.
@@ -108,7 +126,19 @@ def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
     total = float(depth.sum())
     if total <= 0:
         return None
-    return (depth / total) @ region.astype(np.float64)
+    return depth / total
+
+
+def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
+                         polarity: str) -> np.ndarray | None:
+    """Return the ROI's rows averaged with weights proportional to the mark's depth in each.
+
+    The weights are ``row_weights``; None if there are none.
+    """
+    weights = row_weights(region, lo, hi, pad, polarity)
+    if weights is None:
+        return None
+    return weights @ region.astype(np.float64)
 
 
 def deficit_noise(deficit: np.ndarray, keep: np.ndarray) -> float:

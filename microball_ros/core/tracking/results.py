@@ -60,7 +60,8 @@ class TrackResult:
     """Tracked positions of a sequence: arrays per mark name, all of the length of ``time``.
 
     ``position`` in m, ``position_px`` in image columns, ``quality`` in [0, 1], ``sigma_px``
-    the estimated noise; invalid samples are NaN with a low quality.
+    the estimated noise; invalid samples are NaN with a low quality; ``polarity`` the learned
+    polarity per mark ('dark' or 'bright'; absent if the mark was never found).
     """
 
     time: np.ndarray
@@ -73,12 +74,14 @@ class TrackResult:
     fps: float
     exposure: float
     names: tuple[str, ...] = field(default=())
+    polarity: dict[str, str] = field(default_factory=dict)
 
     def to_columns(self) -> dict[str, np.ndarray]:
         """Return the position-CSV columns (DESIGN.md section 5) as an ordered dict.
 
-        ``time,stator_position,slider_position,slider_quality,stator_quality``; needs marks
-        named 'slider' and 'stator'; NaN marks an empty cell.
+        ``time,stator_position,slider_position,slider_quality,stator_quality,slider_sigma,
+        stator_sigma`` (sigma: the position's standard error, m); needs marks named 'slider'
+        and 'stator'; NaN marks an empty cell (a lost mark has neither position nor sigma).
         """
         for name in ('slider', 'stator'):
             if name not in self.position:
@@ -86,4 +89,9 @@ class TrackResult:
         return {'time': self.time, 'stator_position': self.position['stator'],
                 'slider_position': self.position['slider'],
                 'slider_quality': self.quality['slider'],
-                'stator_quality': self.quality['stator']}
+                'stator_quality': self.quality['stator'],
+                'slider_sigma': self._sigma_m('slider'), 'stator_sigma': self._sigma_m('stator')}
+
+    def _sigma_m(self, name: str) -> np.ndarray:
+        sigma = np.asarray(self.sigma_px[name], dtype=float) * self.meters_per_pixel
+        return np.where(np.isfinite(self.position[name]), sigma, np.nan)

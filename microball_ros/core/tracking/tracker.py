@@ -9,6 +9,7 @@ any tracking. Output depends only on the ordered frames and the parameters.
 """
 
 from collections.abc import Callable, Iterable, Mapping
+import itertools
 import math
 from typing import Any
 
@@ -49,13 +50,24 @@ class Tracker:
             raise InputError(f'exposure must be in [0, 1/fps], got {exposure!r}')
         self.start_time = float(start_time)
         self.config = TrackerConfig() if config is None else config
-        self.marks = {name: MarkTracker(check_roi(roi, frame_size, name), self.config, name)
+        self.marks = {name: MarkTracker(check_roi(roi, frame_size, name), self.config, name,
+                                        self.exposure * self.fps)
                       for name, roi in rois.items()}
         self.index = 0
 
     def frame_time(self, index: int) -> float:
         """Return the mid-exposure time (s) of frame ``index``."""
         return self.start_time + index / self.fps + self.exposure / 2.0
+
+    def prime(self, frames: Iterable[npt.ArrayLike]) -> None:
+        """Learn every mark from ``frames``, then restart at frame 0 with what was learned.
+
+        Batch tracking primes on the first ``config.prime_frames`` frames and then tracks
+        them again, so the first frames get the learned mark too.
+        """
+        frames = [to_gray(frame) for frame in frames]
+        for mark in self.marks.values():
+            mark.prime(frames)
 
     def process(self, frame: npt.ArrayLike, time: float | None = None) -> TrackedFrame:
         """Track all marks in the next frame and return a TrackedFrame.
@@ -101,6 +113,11 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
     tracker = Tracker(rois, meters_per_pixel, fps, exposure, start_time, config,
                       frame_size=(first.shape[1], first.shape[0]))
     names = tuple(tracker.marks)
+    head = list(itertools.islice(sequence, max(int(tracker.config.prime_frames), 0)))
+    if max_frames is not None:
+        head = head[:max(int(max_frames), 1)]
+    tracker.prime(head)
+    sequence = itertools.chain(head, sequence)
     stamps: list[float] = []
     rows: list[dict[str, MarkMeasurement]] = []
     for frame in sequence:
@@ -127,4 +144,5 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         sigma_px={n: np.array([r[n].sigma_px for r in rows]) for n in names},
         reason={n: [r[n].reason for r in rows] for n in names},
         meters_per_pixel=tracker.meters_per_pixel, fps=tracker.fps,
-        exposure=tracker.exposure, names=names)
+        exposure=tracker.exposure, names=names,
+        polarity={n: m.polarity for n, m in tracker.marks.items() if m.polarity})

@@ -73,7 +73,7 @@ def read_frames(bag, topic=IMAGES_TOPIC):
         for image in _deserialized(bag, topic):
             stamp = image.header.stamp.sec + image.header.stamp.nanosec * 1e-9
             yield stamp, image_to_gray(image.encoding, image.height, image.width, image.step,
-                                       image.data)
+                                       image.data, image.is_bigendian)
     except BagError:
         raise
     except Exception as error:  # noqa: B902 - rosbags' errors vary; report them in one line

@@ -1,0 +1,199 @@
+"""One mark in one ROI by its deficit profile (the default method): stages, checks, quality.
+
+Owns CentroidMarkTracker. Per frame it builds the
+profile and baseline (core.tracking.profile), locates the dip (core.tracking.search), checks
+it (signal-to-noise, the mark clear of the ROI edges, no saturation, an integrated deficit
+consistent with recent frames) and fits its position (core.tracking.subpixel). A failed check
+gives NaN and a quality below ``min_quality``: positions are never invented. Its state, all
+from earlier frames in order: the previous position (to tell a still mark from a moving one)
+and the recent integrated deficits (to recognise a partly hidden mark).
+"""
+
+from collections import deque
+import math
+
+import numpy as np
+
+from microball_ros.core.errors import InputError
+from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.image import Roi, check_roi
+from microball_ros.core.tracking.profile import (
+    Baseline,
+    column_profile,
+    default_saturation,
+    deficit_noise,
+    polarity_of,
+    relative_deficit,
+    row_weighted_profile,
+)
+from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.search import locate
+from microball_ros.core.tracking.subpixel import deficit_centroid, refine_position
+
+
+class CentroidMarkTracker:
+    """Track one mark inside one ROI, frame by frame.
+
+    State (all from earlier frames, in order): the previous position, to tell a still mark from
+    a moving one, and the recent integrated deficits, to recognise a partly hidden mark.
+    """
+
+    def __init__(self, roi: Roi, config: TrackerConfig | None = None, name: str = 'mark',
+                 exposure_fraction: float = 0.5):
+        """Create a tracker for the mark in ``roi`` (x, y, w, h, px).
+
+        With polarity 'auto' the first frame the mark is found in (as dark or as bright,
+        whichever stands out more) fixes the polarity. ``exposure_fraction`` is unused here.
+        """
+        self.roi = check_roi(roi, name=name)
+        self.config = TrackerConfig() if config is None else config
+        self.name = name
+        self._baseline = Baseline(self.roi[2], self.config.baseline_degree)
+        self._areas: deque[float] = deque(maxlen=int(self.config.area_history))
+        self._previous: float | None = None
+        self.polarity: str | None = None if self.config.polarity == 'auto' else (
+            self.config.polarity)
+
+    def reset(self) -> None:
+        """Forget the history (for a new, unrelated sequence)."""
+        self._areas.clear()
+        self._previous = None
+        if self.config.polarity == 'auto':
+            self.polarity = None
+
+    def prime(self, frames) -> None:
+        """Nothing to learn beyond the polarity: fix it from the first frames, then reset."""
+        if self.polarity is None:
+            for frame in frames:
+                self.measure(frame)
+                if self.polarity is not None:
+                    break
+        polarity = self.polarity
+        self.reset()
+        self.polarity = polarity
+
+    @property
+    def learned(self) -> dict:
+        """Return what was learned: the polarity (or nothing)."""
+        return {'polarity': self.polarity} if self.polarity else {}
+
+    def _invalid(self, reason, contrast=float('nan')):
+        self._previous = None
+        return MarkMeasurement(float('nan'), 0.0, contrast=contrast, reason=reason)
+
+    def _deficit(self, profile, keep, polarity):
+        """Return the deficit against a baseline fitted on ``keep``, or None if too dark."""
+        baseline = self._baseline.fit(profile, keep)
+        if baseline.min() < self.config.min_baseline:
+            return None
+        return relative_deficit(profile, baseline, polarity)
+
+    def measure(self, frame: np.ndarray) -> MarkMeasurement:
+        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
+
+        Before the polarity is known ('auto'), both are tried and the better one is kept.
+        """
+        if self.polarity is not None:
+            return self._measure(frame, self.polarity)
+        x, y, w, h = self.roi
+        if frame.ndim == 2 and x + w <= frame.shape[1] and y + h <= frame.shape[0]:
+            guess = polarity_of(column_profile(frame[y:y + h, x:x + w]))
+            if guess is not None:
+                measurement = self._measure(frame, guess)
+                if measurement.valid:
+                    self.polarity = guess
+                return measurement
+        state = (deque(self._areas, maxlen=self._areas.maxlen), self._previous)
+        results = {}
+        for polarity in ('dark', 'bright'):
+            self._areas, self._previous = deque(state[0], maxlen=state[0].maxlen), state[1]
+            results[polarity] = (self._measure(frame, polarity), self._areas, self._previous)
+        polarity = max(results, key=lambda p: (results[p][0].valid, results[p][0].quality,
+                                               results[p][0].contrast
+                                               if math.isfinite(results[p][0].contrast) else 0))
+        measurement, self._areas, self._previous = results[polarity]
+        if measurement.valid:
+            self.polarity = polarity
+        return measurement
+
+    def _measure(self, frame: np.ndarray, polarity: str) -> MarkMeasurement:
+        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
+
+        Quality = (1 - exp(-(snr / snr_scale)^2)) * exp(-(area ratio - 1)^2 / (2 tol^2)), 0 after
+        a failed check (too dark, saturated, mark at the ROI edge, no mark); the position is NaN
+        whenever the quality is below ``min_quality``.
+        """
+        cfg = self.config
+        x, y, w, h = self.roi
+        if frame.ndim != 2 or x + w > frame.shape[1] or y + h > frame.shape[0]:
+            raise InputError(f'{self.name} ROI {x},{y},{w},{h} extends outside the '
+                             f'{frame.shape[1] if frame.ndim > 1 else 0}x{frame.shape[0]} frame')
+        region = frame[y:y + h, x:x + w]
+        profile = column_profile(region)
+        if not np.all(np.isfinite(profile)):
+            return self._invalid('non-finite pixels')
+        saturation = (cfg.saturation_level if cfg.saturation_level is not None
+                      else default_saturation(region.dtype))
+        if saturation is not None and profile.max() >= saturation:
+            return self._invalid('saturated')
+        pad = int(cfg.pad_px)
+        guard = pad + int(cfg.smoothing_px)
+        baseline = self._baseline.envelope(profile, polarity)
+        if baseline.min() < cfg.min_baseline:
+            return self._invalid('too dark')
+        deficit = relative_deficit(profile, baseline, polarity)
+        _, _, lo, hi = locate(deficit, 0.0, 0.25, cfg.smoothing_px)
+        margin = guard + (hi - lo) // 4
+        for attempt in range(3):
+            # Plain plate = everything outside the mark and a guard band; refit on it twice.
+            keep = np.ones(w, dtype=bool)
+            keep[max(lo - margin, 0):hi + margin + 1] = False
+            if np.count_nonzero(keep) < 12:
+                flat = float(np.max(np.abs(deficit))) < cfg.min_depth
+                return self._invalid('low contrast' if flat else 'mark fills the ROI (widen it)')
+            if attempt == 2:
+                break
+            deficit = self._deficit(profile, keep, polarity)
+            if deficit is None:
+                return self._invalid('too dark')
+            _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px)
+            margin = guard
+        if cfg.weight_rows and h > 1:
+            weighted = row_weighted_profile(region, lo, hi, pad, polarity)
+            if weighted is not None:
+                deficit = self._deficit(weighted, keep, polarity)
+                if deficit is None:
+                    return self._invalid('too dark')
+        noise = deficit_noise(deficit, keep)
+        _, peak, lo, hi = locate(deficit, noise, cfg.threshold, cfg.smoothing_px)
+        snr = peak * math.sqrt(cfg.smoothing_px) / noise
+        if snr < cfg.min_snr or peak < cfg.min_depth:
+            return self._invalid('low contrast', contrast=peak)
+        first, last = lo - pad, hi + pad
+        if first < 1 or last > w - 2:
+            return self._invalid('mark at the ROI edge', contrast=peak)
+        if saturation is not None and polarity == 'dark':
+            window = region[:, max(first - guard, 0):last + guard + 1]
+            if np.count_nonzero(window >= saturation) > cfg.max_saturated_fraction * window.size:
+                return self._invalid('saturated', contrast=peak)
+        centroid, sigma_centroid, area = deficit_centroid(deficit, first, last, noise)
+        if area <= 0:
+            return self._invalid('low contrast', contrast=peak)
+        # The integrated deficit does not change with blur: a jump means a partly hidden mark.
+        # Rejected frames enter the history too, so a lasting change is accepted after a while.
+        ratio = area / float(np.median(self._areas)) if len(self._areas) >= 3 else 1.0
+        self._areas.append(area)
+        position, sigma = refine_position(deficit, first, last, centroid, sigma_centroid, noise,
+                                          x, cfg, self._previous)
+        q_snr = 1.0 - math.exp(-(snr / cfg.snr_scale) ** 2)
+        q_area = math.exp(-0.5 * ((ratio - 1.0) / cfg.area_tolerance) ** 2)
+        quality = q_snr * q_area
+        extent = float(hi - lo + 1)
+        if quality < cfg.min_quality or not math.isfinite(position):
+            reason = 'mark area changed' if q_area < q_snr else 'low contrast'
+            self._previous = None
+            return MarkMeasurement(float('nan'), quality, contrast=peak, extent_px=extent,
+                                   reason=reason)
+        self._previous = position
+        return MarkMeasurement(position, quality, sigma_px=sigma, contrast=peak,
+                               extent_px=extent)

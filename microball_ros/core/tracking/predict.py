@@ -1,0 +1,80 @@
+"""Motion prediction for the gated search: where the mark will be in the next frames.
+
+Owns the mark's recent track (image columns, frame by frame, NaN when lost) and a linear
+predictor fitted to it by least squares: a nearly periodic motion (a sinusoid and its
+harmonics, slow drift) obeys a short linear recurrence ``x[n] = sum a_i x[n - i] + b``, so a
+few coefficients fitted over the last periods predict the next frame to a fraction of a pixel
+without knowing the frequency. With too little history it falls back to constant velocity,
+then to the last position, and says how far to trust the prediction (``Prediction.spread``).
+"""
+
+from collections import deque
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Prediction(NamedTuple):
+    """Predicted column of this frame and the next, one-step spread (px); previous column."""
+
+    column: float
+    following: float
+    previous: float
+    before: float
+    spread: float
+
+
+class MotionPredictor:
+    """Linear prediction of a mark's column from its recent valid positions."""
+
+    def __init__(self, order: int = 4, history: int = 60):
+        """Keep ``history`` frames and fit a recurrence of ``order`` past values."""
+        self.order = int(order)
+        self._track: deque[float] = deque(maxlen=int(history))
+
+    def reset(self) -> None:
+        """Forget the track."""
+        self._track.clear()
+
+    def add(self, column: float) -> None:
+        """Append this frame's column (NaN when the mark was lost)."""
+        self._track.append(float(column))
+
+    def _recurrence(self, track):
+        p = self.order
+        rows, targets = [], []
+        for n in range(p, track.size):
+            window = track[n - p:n + 1]
+            if np.all(np.isfinite(window)):
+                rows.append(np.append(window[:-1][::-1], 1.0))
+                targets.append(window[-1])
+        if len(rows) < 3 * (p + 1):
+            return None
+        design, targets = np.array(rows), np.array(targets)
+        scale = max(float(np.std(targets)), 1.0)
+        coef, *_ = np.linalg.lstsq(design, targets, rcond=None)
+        residual = targets - design @ coef
+        spread = math.sqrt(float(residual @ residual) / max(len(targets) - p - 1, 1))
+        return coef, spread, scale
+
+    def predict(self) -> Prediction | None:
+        """Return the prediction for the next frame, or None without any recent position."""
+        track = np.array(self._track)
+        if track.size == 0 or not np.isfinite(track[-1]):
+            return None
+        previous = track[-1]
+        before = track[-2] if track.size >= 2 else math.nan
+        fitted = self._recurrence(track)
+        p = self.order
+        if fitted is not None and np.all(np.isfinite(track[-p:])):
+            coef, spread, _ = fitted
+            recent = list(track[-p:][::-1])
+            column = float(np.dot(coef[:-1], recent) + coef[-1])
+            following = float(np.dot(coef[:-1], [column] + recent[:-1]) + coef[-1])
+            return Prediction(column, following, previous, before, max(spread, 0.05))
+        if math.isfinite(before):
+            velocity = previous - before
+            return Prediction(previous + velocity, previous + 2 * velocity, previous, before,
+                              math.inf)
+        return Prediction(previous, previous, previous, before, math.inf)

@@ -1,0 +1,126 @@
+"""Hard marks against exact ground truth: bright blobs, 16-bit, flicker, covers, texture.
+
+Scenes from test/tracking_scenes.py (independent of core.camera's renderer): the paper's
+motion (+-240 px at 2.95 Hz, 30 fps, 1/60 s exposure, so up to ~70 px of smear), 60 frames.
+Errors are against the exposure-averaged mark column (px).
+"""
+
+from dataclasses import replace
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+sys.path.insert(0, __file__.rsplit('/', 1)[0])
+from tracking_scenes import SceneSpec, plates, render  # noqa: E402
+
+from microball_ros.core.tracking import TrackerConfig, track  # noqa: E402
+from microball_ros.io.video import image_to_gray  # noqa: E402
+
+SCALE = 5e-6
+
+
+def errors(scene, result):
+    return {p: result.position_px[p] - scene.truth[p] for p in scene.truth}
+
+
+def test_bright_blob_on_a_dark_plate_is_found_with_default_options():
+    # IR-lit blobs: brighter than their plate. Before polarity 'auto' all but a few were lost.
+    spec = SceneSpec(plates=plates(shape='blob', contrast=150.0, level=40.0, width=16.0),
+                     gap_level=20.0)
+    scene = render(spec, 60, seed=3)
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    for plate, error in errors(scene, result).items():
+        assert result.polarity[plate] == 'bright'
+        assert np.all(np.isfinite(error)), plate
+        assert np.sqrt(np.mean(error ** 2)) < 0.1 and np.max(np.abs(error)) < 0.5, plate
+        # The reported standard error is of the size of the actual scatter.
+        ratio = np.median(result.sigma_px[plate]) / np.sqrt(np.mean(error ** 2))
+        assert 0.3 < ratio < 3.0, (plate, ratio)
+
+
+def test_sixteen_bit_bright_bars_and_forced_polarity():
+    spec = SceneSpec(plates=plates(contrast=60.0, level=100.0), bits=16)
+    scene = render(spec, 40, seed=5)
+    assert scene.frames.dtype == np.uint16
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    for plate, error in errors(scene, result).items():
+        assert np.all(np.isfinite(error)) and np.sqrt(np.mean(error ** 2)) < 0.1, plate
+    dark = track(scene.frames, scene.rois, SCALE, fps=30.0,
+                 config=TrackerConfig(polarity='dark'))
+    # Forced to the wrong polarity, the tracker does not follow the bright mark.
+    near = np.abs(dark.position_px['slider'] - scene.truth['slider']) < 1.0
+    assert near.mean() < 0.1
+
+
+def test_flicker_is_normalised():
+    scene = render(SceneSpec(flicker=0.15), 40, seed=7)
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    for plate, error in errors(scene, result).items():
+        assert np.all(np.isfinite(error)) and np.sqrt(np.mean(error ** 2)) < 0.06, plate
+
+
+def test_a_covered_mark_is_never_reported_and_is_reacquired():
+    scene = render(SceneSpec(), 40, seed=9, covers=[('slider', 12, 15), ('stator', 30, 30)])
+    for method in ('auto', 'template'):
+        result = track(scene.frames, scene.rois, SCALE, fps=30.0,
+                       config=TrackerConfig(method=method))
+        err = errors(scene, result)
+        covered = {'slider': [12, 13, 14, 15], 'stator': [30]}
+        for plate, frames in covered.items():
+            assert np.all(np.isnan(err[plate][frames])), (method, plate)
+            clear = np.setdiff1d(np.arange(40), frames)
+            assert np.isfinite(err[plate][clear]).mean() >= 0.9, (method, plate)
+            assert np.nanmax(np.abs(err[plate][clear])) < 1.0, (method, plate)
+        assert np.isfinite(err['slider'][16:19]).all()  # re-acquired at once
+
+
+def test_template_method_removes_a_static_texture():
+    spec = SceneSpec(static_texture=12.0)
+    scene = render(spec, 60, seed=3)
+    default = errors(scene, track(scene.frames, scene.rois, SCALE, fps=30.0))
+    learned = errors(scene, track(scene.frames, scene.rois, SCALE, fps=30.0,
+                                  config=TrackerConfig(method='template')))
+    for plate in scene.truth:
+        rms_default = np.sqrt(np.nanmean(default[plate] ** 2))
+        rms_learned = np.sqrt(np.nanmean(learned[plate] ** 2))
+        assert rms_learned < 0.12 and rms_learned < 0.6 * rms_default, plate
+        assert np.isnan(learned[plate]).mean() <= 0.1
+        assert np.nanmax(np.abs(learned[plate])) < 0.5
+
+
+@pytest.mark.parametrize('ros, pattern', [('rggb', 'RGGB'), ('bggr', 'BGGR'), ('gbrg', 'GBRG'),
+                                          ('grbg', 'GRBG')])
+def test_bayer_images_are_demosaiced_with_the_ros_pattern(ros, pattern):
+    # A scene whose red, green and blue differ: only the right pattern gives its gray.
+    rng = np.random.default_rng(1)
+    bgr = np.zeros((32, 48, 3), np.uint8)
+    bgr[:] = (30, 120, 220)
+    bgr = cv2.GaussianBlur(bgr + rng.integers(0, 3, bgr.shape, dtype=np.uint8), (0, 0), 1)
+    offsets = {'R': 2, 'G': 1, 'B': 0}
+    mosaic = np.empty((32, 48), np.uint8)
+    for dy in (0, 1):
+        for dx in (0, 1):
+            channel = offsets[pattern[2 * dy + dx]]
+            mosaic[dy::2, dx::2] = bgr[dy::2, dx::2, channel]
+    gray = image_to_gray(f'bayer_{ros}8', 32, 48, 48, mosaic.tobytes())
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    assert gray.shape == (32, 48) and gray.dtype == np.uint8
+    assert np.abs(gray[4:-4, 4:-4].astype(int) - expected[4:-4, 4:-4]).max() <= 3
+    wide = image_to_gray(f'bayer_{ros}16', 32, 48, 96,
+                         (mosaic.astype('<u2') * 257).tobytes())
+    assert wide.dtype == np.uint16
+    assert np.abs(wide[4:-4, 4:-4] / 257.0 - expected[4:-4, 4:-4]).max() <= 3
+
+
+def test_sixteen_bit_messages_in_either_byte_order():
+    frame = (np.arange(12 * 20, dtype=np.uint16).reshape(12, 20) * 250)
+    little = image_to_gray('mono16', 12, 20, 40, frame.astype('<u2').tobytes())
+    big = image_to_gray('mono16', 12, 20, 40, frame.astype('>u2').tobytes(), is_bigendian=1)
+    np.testing.assert_array_equal(little, frame)
+    np.testing.assert_array_equal(big, frame)
+    rgb = np.repeat(frame[:, :, None], 3, axis=2)
+    np.testing.assert_array_equal(image_to_gray('rgb16', 12, 20, 120, rgb.astype('<u2').tobytes()),
+                                  frame)
+    assert replace(SceneSpec(), bits=16).bits == 16

@@ -1,0 +1,195 @@
+"""Hard synthetic scenes for the tracker tests, rendered exactly, with known truth.
+
+Independent of core.camera's scene (only its exact box integral is reused): two plates, each
+with a mark of any polarity and shape ('bar', 'cross', 'pair' of bars, 'blob'), moving along x;
+optional surface texture that moves with its plate, a static texture (fixed in the image),
+illumination flicker, occlusions, 8- or 16-bit output. Everything is analytic: the textures
+are sums of plane waves, so motion blur, pixel integration and the optical PSF are exact
+factors per wave; the marks are boxes or Gaussians integrated over each pixel and averaged
+over the sub-exposure positions. Truth is the exposure-averaged mark column (px).
+"""
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+from scipy.special import ndtr
+
+from microball_ros.core.camera import box_profile
+
+
+@dataclass(frozen=True)
+class PlateSpec:
+    """One plate and its mark; ``contrast`` in DN (negative: a dark mark), sizes in px."""
+
+    band: tuple = (20.0, 190.0)
+    shape: str = 'bar'
+    contrast: float = -100.0
+    width: float = 20.0
+    height: float = 50.0
+    stroke: float = 6.0
+    gap: float = 14.0
+    texture: float = 0.0
+    level: float = 170.0
+    amplitude: float = 240.0
+    frequency: float = 2.95
+    phase: float = 0.0
+    origin: float = 360.0
+
+    def motion(self, t):
+        """Return the mark centre column at times ``t`` (s)."""
+        return self.origin + self.amplitude * np.sin(
+            2 * math.pi * self.frequency * np.asarray(t, dtype=float) + self.phase)
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """The whole frame: plates, static texture, flicker, noise, bit depth."""
+
+    plates: dict = field(default_factory=lambda: {
+        'slider': PlateSpec(band=(20.0, 190.0)),
+        'stator': PlateSpec(band=(290.0, 460.0), phase=1.0)})
+    width: int = 720
+    height: int = 480
+    fps: float = 30.0
+    exposure: float = 1.0 / 60.0
+    gap_level: float = 40.0
+    static_texture: float = 0.0
+    flicker: float = 0.0
+    gradient: tuple = (0.2, 0.1)
+    psf: float = 0.9
+    gain: float = 20.0
+    read_noise: float = 1.0
+    bits: int = 8
+
+
+def _waves(rng, n, amplitude, shortest=3.0, longest=40.0):
+    wavelength = np.exp(rng.uniform(math.log(shortest), math.log(longest), n))
+    angle = rng.uniform(0, math.pi, n)
+    k = 2 * math.pi / wavelength
+    kx, ky = k * np.cos(angle), k * np.sin(angle)
+    phase = rng.uniform(0, 2 * math.pi, n)
+    return kx, ky, phase, np.full(n, amplitude * math.sqrt(2.0 / n))
+
+
+def _texture(cols, rows, waves, shifts, psf):
+    """Sum of plane waves, pixel-integrated, PSF-blurred, averaged over x shifts."""
+    kx, ky, phase, amp = waves
+    factor = (np.sinc(kx / (2 * math.pi)) * np.sinc(ky / (2 * math.pi))
+              * np.exp(-0.5 * psf ** 2 * (kx ** 2 + ky ** 2)) * amp)
+    motion = np.exp(-1j * np.outer(kx, shifts)).mean(axis=1)
+    ex = np.exp(1j * (np.outer(kx, cols) + phase[:, None])) * (factor * motion)[:, None]
+    ey = np.exp(1j * np.outer(ky, rows))
+    return np.real(ey.T @ ex)
+
+
+def _gauss_profile(pixels, centers, sigma):
+    edges = np.append(pixels - 0.5, pixels[-1] + 0.5)
+    cdf = ndtr((edges[None, :] - np.asarray(centers)[:, None]) / sigma).mean(axis=0)
+    return np.diff(cdf)
+
+
+def _mark(spec, cols, rows, centers, psf):
+    """Return the mark's image (DN) over the band: signed sum of separable terms."""
+    row = (spec.band[0] + spec.band[1]) / 2.0
+    image = np.zeros((rows.size, cols.size))
+    if spec.shape == 'blob':
+        sigma = math.hypot(spec.width / 2.0, psf)
+        return spec.contrast * np.outer(_gauss_profile(rows, [row], sigma),
+                                        _gauss_profile(cols, centers, sigma)) * (
+            2 * math.pi * sigma * sigma)
+    if spec.shape == 'bar':
+        terms = [(0.0, spec.width / 2, spec.height / 2, 1.0)]
+    elif spec.shape == 'pair':
+        half = spec.gap / 2 + spec.stroke / 2
+        terms = [(-half, spec.stroke / 2, spec.height / 2, 1.0),
+                 (half, spec.stroke / 2, spec.height / 2, 1.0)]
+    elif spec.shape == 'cross':
+        s = spec.stroke / 2
+        terms = [(0.0, s, spec.height / 2, 1.0), (0.0, spec.width / 2, s, 1.0),
+                 (0.0, s, s, -1.0)]
+    else:
+        raise ValueError(spec.shape)
+    for offset, half_w, half_h, sign in terms:
+        image += sign * np.outer(box_profile(rows, [row], half_h, psf),
+                                 box_profile(cols, np.asarray(centers) + offset, half_w, psf))
+    return spec.contrast * image
+
+
+@dataclass
+class Scene:
+    """Rendered frames, the exposure-mean truth per plate (px) and suggested ROIs."""
+
+    frames: np.ndarray
+    truth: dict
+    rois: dict
+    spec: SceneSpec
+    expected: list
+
+
+def render(spec, n_frames, seed=0, covers=(), keep_expected=False):
+    """Render ``n_frames`` frames; ``covers`` = [(plate, first, last)] frames hiding a mark.
+
+    A cover paints the plate's own level (times the illumination) over the mark's whole
+    band around its position, as a particle or a shadow would, so nothing of it is seen.
+    """
+    rng = np.random.default_rng(seed)
+    cols = np.arange(spec.width, dtype=float)
+    rows = np.arange(spec.height, dtype=float)
+    static_waves = _waves(rng, 60, spec.static_texture, 2.5, 25.0)
+    plate_waves = {name: _waves(rng, 60, p.texture) for name, p in spec.plates.items()}
+    xn = cols / (spec.width - 1) - 0.5
+    yn = rows / (spec.height - 1) - 0.5
+    light = np.outer(1 + spec.gradient[1] * yn, 1 + spec.gradient[0] * xn)
+    base = np.full((spec.height, spec.width), spec.gap_level)
+    for plate in spec.plates.values():
+        top, bottom = (int(v) for v in plate.band)
+        base[top:bottom] = plate.level
+    if spec.static_texture:
+        base += _texture(cols, rows, static_waves, np.zeros(1), spec.psf)
+    frames, expected = [], []
+    truth = {name: np.empty(n_frames) for name in spec.plates}
+    flicker = 1 + spec.flicker * rng.uniform(-1, 1, n_frames)
+    scale = 257.0 if spec.bits == 16 else 1.0
+    for n in range(n_frames):
+        times = (n + (np.arange(64) + 0.5) / 64 * spec.exposure * spec.fps) / spec.fps
+        scene = base.copy()
+        for name, plate in spec.plates.items():
+            centers = plate.motion(times)
+            truth[name][n] = centers.mean()
+            top, bottom = (int(v) for v in plate.band)
+            band = np.s_[top:bottom]
+            if plate.texture:
+                scene[band] += _texture(cols, rows[band], plate_waves[name],
+                                        centers - plate.origin, spec.psf)
+            scene[band] += _mark(plate, cols, rows[band], centers, spec.psf)
+            for cover_plate, first, last in covers:
+                if cover_plate == name and first <= n <= last:
+                    c = int(round(truth[name][n]))
+                    left, right = max(c - 60, 0), min(c + 60, spec.width)
+                    scene[top:bottom, left:right] = plate.level
+        mean = np.clip(scene * light * flicker[n], 0, None)
+        if keep_expected:
+            expected.append(mean)
+        noise = np.sqrt(mean / spec.gain + spec.read_noise ** 2)
+        dn = mean + noise * rng.standard_normal(mean.shape)
+        top_value = 65535 if spec.bits == 16 else 255
+        dtype = np.uint16 if spec.bits == 16 else np.uint8
+        frames.append(np.clip(np.rint(dn * scale), 0, top_value).astype(dtype))
+    rois = {}
+    for name, plate in spec.plates.items():
+        half = max(plate.width, 2 * plate.gap + plate.stroke) / 2 + 30
+        x0 = max(int(plate.origin - abs(plate.amplitude) - half), 0)
+        x1 = min(int(plate.origin + abs(plate.amplitude) + half) + 1, spec.width)
+        row = (plate.band[0] + plate.band[1]) / 2
+        h = plate.height / 2 + 10
+        rois[name] = (x0, int(row - h), x1 - x0, int(2 * h))
+    return Scene(np.array(frames), truth, rois, spec, expected)
+
+
+def plates(**changes):
+    """Return the two default plates with ``changes`` applied to both."""
+    from dataclasses import replace
+
+    return {'slider': replace(PlateSpec(band=(20.0, 190.0)), **changes),
+            'stator': replace(PlateSpec(band=(290.0, 460.0), phase=1.0), **changes)}
