@@ -335,6 +335,10 @@ def loop_test(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt.ArrayLike,
         bias = float(harmonics * (tail[-1] + tail[-2]))
     else:
         bias = float(np.sum(tail))
+    # A crank speed that varies within a block (local frequencies apart) breaks the harmonic
+    # model of the block: harmonic k drifts by 2 pi k df T over it, bounded here.
+    wander = float(np.max(np.abs(np.asarray(local) - frequency))) if len(local) else 0.0
+    bias += 2 * np.pi * wander * block_time * harmonics  # harmonic k drifts k times faster
     if abs(statistic) - k * sigma - bias > 0:
         verdict = 'memory'
     elif abs(statistic) + k * sigma + bias <= margin:

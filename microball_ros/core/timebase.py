@@ -112,12 +112,15 @@ def regularise(time, stator, slider, valid=None, fill=2) -> Grid:
                          f'{t[k]:.6g} s): not one record in time order')
     positive = steps[steps > 0]
     dt = float(np.median(positive))
-    # Refine dt by a least-squares line through the slots (stamps may be jittered).
-    slot = np.round((t - t[0]) / dt)
-    if slot[-1] > 0:
-        dt = float(np.polyfit(slot, t, 1)[0])
-    t0 = float(np.median(t - slot * dt))
-    slot = np.round((t - t0) / dt).astype(np.int64)
+    # Slots step by step (each step is a few frames at most, so a rough dt places them), then
+    # dt and t0 by a least-squares line through the slots (stamps may be jittered), twice.
+    slot = np.concatenate(([0.0], np.cumsum(np.round(steps / dt))))
+    for _ in range(2):
+        if slot[-1] > 0:
+            dt = float(np.polyfit(slot, t, 1)[0])
+        t0 = float(np.median(t - slot * dt))
+        slot = np.round((t - t0) / dt)
+    slot = slot.astype(np.int64)
     notes = []
     # A duplicated stamp: the frame carries its predecessor's stamp, so it belongs one slot on.
     duplicate = np.concatenate(([False], slot[1:] == slot[:-1]))
