@@ -6,6 +6,10 @@ from setuptools import find_packages, setup
 
 package_name = 'microball_ros'
 
+# The node sample bags of microball_ros.testing (bags/make_node_samples.py), installed where
+# pip (a venv) and colcon (an install space) put data: <prefix>/share/microball_ros/bags/.
+SAMPLE_BAGS = ('camera_tracker', 'three_stage_estimator', 'friction_identifier')
+
 setup(
     name=package_name,
     version='0.1.0',
@@ -17,6 +21,8 @@ setup(
         ('share/' + package_name + '/msg_defs/msg', glob('msg_defs/msg/*.msg')),
         ('share/' + package_name + '/config', ['config/microball.yaml']),
         ('share/' + package_name + '/launch', ['launch/microball.launch.xml']),
+        *((f'share/{package_name}/bags/{name}', sorted(glob(f'bags/{name}/*')))
+          for name in SAMPLE_BAGS),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -35,6 +41,10 @@ setup(
             'friction_identifier = microball_ros.nodes.friction_identifier:main',
             'recorder = microball_ros.nodes.recorder:main',
             'camera_source = microball_ros.nodes.camera_source:main',
+        ],
+        # The node-testing kit's fixtures, in every pytest session of the environment.
+        'pytest11': [
+            'microball_ros.testing.plugin = microball_ros.testing.plugin',
         ],
     },
 )

@@ -13,7 +13,6 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 from rclpy.serialization import deserialize_message, serialize_message
-from ros_testing import Harness
 import yaml
 
 from microball_ros.app.experiment import run_experiment
@@ -26,6 +25,7 @@ from microball_ros.io.bags.writer import BagWriter
 from microball_ros.io.compare import compare_messages, decode
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.recorder import Recorder
+from microball_ros.testing import Harness
 
 
 def _positions(n):
@@ -229,34 +229,22 @@ def test_a_bag_of_frames_without_parameters_needs_the_scale(recorded_run, tmp_pa
     assert low <= 1.2 <= high
 
 
-def test_killed_recorder_leaves_a_bag_that_reindex_repairs(tmp_path):
+def test_killed_recorder_leaves_a_bag_that_reindex_repairs(tmp_path, ros_harness,
+                                                          node_process):
     bag_dir = str(tmp_path / 'bag')
-    recorder = subprocess.Popen(
-        [sys.executable, '-m', 'microball_ros.nodes.recorder', '--ros-args',
-         '-p', f'output:={bag_dir}', '-p', 'topics:=[/tracking/positions]',
-         '-p', 'flush_period:=0.2'], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-        text=True)
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    try:
-        node = rclpy.create_node('killer', context=context)
-        harness = Harness(context)
-        publisher = node.create_publisher(TrackedPositions, '/tracking/positions', DATA_QOS)
-        harness.executor.add_node(node)
-        harness.wait_for_subscribers(publisher)
-        sent = _positions(300)
-        for msg in sent:
-            publisher.publish(msg)
-        mcap = os.path.join(bag_dir, os.path.basename(bag_dir) + '_0.mcap')
-        # Wait until the recorder has flushed at least one chunk to disk.
-        harness.spin_until(lambda: os.path.exists(mcap) and os.path.getsize(mcap) > 4096,
+    publisher = ros_harness.probe.create_publisher(TrackedPositions, '/tracking/positions',
+                                                   DATA_QOS)
+    recorder = node_process('recorder', {'output': bag_dir, 'topics': ['/tracking/positions'],
+                                         'flush_period': 0.2},
+                            ready=lambda: publisher.get_subscription_count() >= 1)
+    sent = _positions(300)
+    for msg in sent:
+        publisher.publish(msg)
+    mcap = os.path.join(bag_dir, os.path.basename(bag_dir) + '_0.mcap')
+    # Wait until the recorder has flushed at least one chunk to disk.
+    ros_harness.spin_until(lambda: os.path.exists(mcap) and os.path.getsize(mcap) > 4096,
                            message='a flushed chunk')
-        os.kill(recorder.pid, signal.SIGKILL)
-        recorder.wait(timeout=10)
-        node.destroy_node()
-        harness.close()
-    finally:
-        rclpy.shutdown(context=context)
+    assert recorder.stop(sig=signal.SIGKILL) == -signal.SIGKILL
     counts = reindex(bag_dir)
     recovered = counts['/tracking/positions']
     assert 0 < recovered <= 300

@@ -22,7 +22,6 @@ from microball_msgs.msg import TrackedPositions
 import pytest
 import rclpy
 from rclpy.serialization import deserialize_message, serialize_message
-from ros_testing import Harness
 import yaml
 
 from microball_ros.io import fingerprint
@@ -31,6 +30,7 @@ from microball_ros.io.bags.mcap_file import scan_file
 from microball_ros.io.bags.metadata import RCLPY_SERIES, bag_metadata, ros_distro
 from microball_ros.io.bags.writer import McapFileWriter
 from microball_ros.nodes.common import DATA_QOS
+from microball_ros.testing import Harness
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SAMPLE = os.path.join(ROOT, 'bags', 'paper_sample')

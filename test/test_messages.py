@@ -4,11 +4,8 @@ import math
 import os
 import subprocess
 import sys
-import time
 
 from msg_samples import MESSAGE_TYPES, sample_message, topic_for
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -29,24 +26,20 @@ def test_friction_model_interval_keeps_infinity():
     assert math.isinf(model.alpha_ci95[1])
 
 
-def test_every_message_type_round_trips_between_processes(ros_context):
+def test_every_message_type_round_trips_between_processes(ros_harness):
     publisher = subprocess.Popen([sys.executable, os.path.join(HERE, 'publish_samples.py')],
                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert publisher.stdout.readline().strip() == 'READY'
-        node = rclpy.create_node('microball_sample_receiver', context=ros_context)
-        executor = SingleThreadedExecutor(context=ros_context)
-        executor.add_node(node)
         qos = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
         received = {}
         for message_type in MESSAGE_TYPES:
-            node.create_subscription(
+            ros_harness.probe.create_subscription(
                 message_type, topic_for(message_type),
                 lambda msg, name=message_type.__name__: received.setdefault(name, msg), qos)
-        deadline = time.monotonic() + 30.0
-        while len(received) < len(MESSAGE_TYPES) and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.1)
+        ros_harness.spin_until(lambda: len(received) == len(MESSAGE_TYPES), 30.0,
+                               'a sample of every message type')
         assert sorted(received) == sorted(t.__name__ for t in MESSAGE_TYPES)
         for message_type in MESSAGE_TYPES:
             expected = sample_message(message_type)
@@ -54,8 +47,6 @@ def test_every_message_type_round_trips_between_processes(ros_context):
             for name in message_type.get_fields_and_field_types():
                 assert str(getattr(got, name)) == str(getattr(expected, name)), name
             assert got == expected
-        executor.shutdown()
-        node.destroy_node()
     finally:
         publisher.stdin.close()
         publisher.wait(timeout=30)

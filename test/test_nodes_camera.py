@@ -6,7 +6,6 @@ from microball_msgs.msg import BenchState, ServoCommand, TrackedPositions
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_testing import Harness
 from sensor_msgs.msg import Image
 
 from microball_ros.core import bench, rig
@@ -14,6 +13,7 @@ from microball_ros.io import conversions
 from microball_ros.nodes.bench_simulator import BenchSimulator
 from microball_ros.nodes.camera_tracker import CameraTracker
 from microball_ros.nodes.common import DATA_QOS, LATCHED_QOS
+from microball_ros.testing import Harness
 
 
 def _tracker_parameters(scenario):

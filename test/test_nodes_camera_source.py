@@ -6,12 +6,12 @@ import sys
 
 import numpy as np
 import pytest
-from ros_testing import Harness
 from sensor_msgs.msg import Image
 
 from microball_ros.io.video import codec_available, write_image_sequence, write_video
 from microball_ros.nodes.camera_source import file_stamp, frame_message
 from microball_ros.nodes.common import IMAGE_QOS
+from microball_ros.testing import Harness
 
 pytestmark = pytest.mark.ros
 

@@ -3,9 +3,9 @@
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 import pytest
 import rclpy
-from ros_testing import Harness
 
 from microball_ros.nodes.common import NodeDiagnostics
+from microball_ros.testing import Harness
 
 pytestmark = pytest.mark.ros
 

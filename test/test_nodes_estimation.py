@@ -6,13 +6,13 @@ from microball_msgs.msg import DerivativeEstimate, FrictionModel, TrackedPositio
 import numpy as np
 import pytest
 from rclpy.parameter import Parameter
-from ros_testing import Harness
 
 from microball_ros.core import bench
 from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.friction_identifier import FrictionIdentifier
 from microball_ros.nodes.three_stage_estimator import ThreeStageEstimator
+from microball_ros.testing import Harness
 
 
 def _publish_positions(harness, time, stator, slider, valid=None):

@@ -18,10 +18,10 @@ import pytest
 from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import GetParameters
 from rclpy.parameter import parameter_value_to_python
-from ros_testing import Harness
 import yaml
 
 from microball_ros.io.video import write_image_sequence
+from microball_ros.testing import Harness
 
 pytestmark = pytest.mark.ros
 

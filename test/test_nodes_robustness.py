@@ -15,7 +15,6 @@ from diagnostic_msgs.msg import DiagnosticArray
 from microball_msgs.msg import DerivativeEstimate, FrictionModel, TrackedPositions
 import numpy as np
 import pytest
-from ros_testing import Harness
 from std_msgs.msg import Header
 
 from microball_ros.core import bench, memory
@@ -23,6 +22,7 @@ from microball_ros.core.windowing import PositionWindower, Skip, WindowSettings
 from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.friction_identifier import FrictionIdentifier
+from microball_ros.testing import Harness
 
 
 def _start_estimator():

@@ -11,7 +11,6 @@ import threading
 from microball_msgs.msg import TrackedPositions
 import pytest
 from rclpy.serialization import serialize_message
-from ros_testing import Harness
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as RosbagsWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -23,6 +22,7 @@ from microball_ros.io import conversions
 from microball_ros.io.bags.reader import open_bag
 from microball_ros.io.bags.schema import msg_file
 from microball_ros.nodes.common import DATA_QOS
+from microball_ros.testing import Harness
 
 POSITIONS = '/tracking/positions'
 POSITIONS_TYPE = 'microball_msgs/msg/TrackedPositions'
@@ -32,7 +32,8 @@ COUNT = 60
 
 
 def _message(k):
-    return conversions.tracked_positions(T0 / 1e9 + k * PERIOD / 1e9, k, 1e-3, 2e-3, 1.0, 1.0)
+    return conversions.tracked_positions(T0 / 1e9 + k * PERIOD / 1e9, k, 1e-3, 2e-3, 1.0, 1.0,
+                                         slider_sigma=1e-7, stator_sigma=1e-7)
 
 
 @pytest.fixture(scope='module')

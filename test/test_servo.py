@@ -5,12 +5,12 @@ import math
 from microball_msgs.msg import ServoCommand
 import pytest
 from rclpy.parameter import Parameter
-from ros_testing import Harness
 from std_srvs.srv import Trigger
 
 from microball_ros.core.servo import MotorModel, Sweep
 from microball_ros.nodes.common import LATCHED_QOS
 from microball_ros.nodes.servo_commander import ServoCommander
+from microball_ros.testing import Harness
 
 
 def test_sweep_program_steps_through_its_frequencies_then_ends():

@@ -2,38 +2,35 @@
 
 import math
 import signal
-import subprocess
-import sys
 
 from microball_msgs.msg import ServoCommand
 import pytest
-from ros_testing import Harness
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from microball_ros.nodes.common import LATCHED_QOS
+from microball_ros.testing import NodeProcess
 from microball_ros.testing.dynamixel_emulator import GOAL_VELOCITY, DynamixelEmulator
 
 UNIT = 0.229 * 2 * math.pi / 60          # rad/s of the motor per Goal/Present Velocity unit
 
 
 def _commander(*params):
-    argv = [sys.executable, '-m', 'microball_ros.nodes.servo_commander', '--ros-args',
-            '-p', 'driver:=dynamixel']
+    """Start the servo_commander console script with driver:=dynamixel and -p params.
+
+    Its standard error (the ROS log) is kept apart from standard output (NodeProcess.log).
+    """
+    ros_args = ['-p', 'driver:=dynamixel']
     for param in params:
-        argv += ['-p', param]
-    return subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ros_args += ['-p', param]
+    return NodeProcess('servo_commander', ros_args=ros_args, merge_output=False).start()
 
 
 def _finish(process, sig=None):
-    if sig is not None:
-        process.send_signal(sig)
-    try:
-        out, err = process.communicate(timeout=30)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        out, err = process.communicate()
-    return process.returncode, err
+    """Send sig (or nothing: it is to exit by itself); return (exit code, standard error)."""
+    code = process.stop(timeout=30.0, sig=sig)
+    assert not process.killed, f'servo_commander did not exit within 30 s:\n{process.log}'
+    return code, process.log
 
 
 def _writes(servo, since=0):
@@ -46,11 +43,9 @@ def _stops_last(servo, since):
 
 
 @pytest.fixture
-def harness(ros_context):
+def harness(ros_harness):
     """Give a probe node on its own executor, with clients for the commander's services."""
-    harness = Harness(ros_context)
-    yield harness
-    harness.close()
+    return ros_harness
 
 
 def _call(harness, name):
@@ -103,9 +98,7 @@ def test_commander_ramps_reports_stops_and_exits_on_sigint(harness):
             assert code == 0, err
             assert _stops_last(servo, before), _writes(servo, before)
         finally:
-            if node.poll() is None:
-                node.kill()
-                node.wait()
+            node.stop()
 
 
 def test_commander_stops_the_motor_on_sigterm(harness):
@@ -122,9 +115,7 @@ def test_commander_stops_the_motor_on_sigterm(harness):
             assert code == 0, err
             assert _writes(servo, before) == [(104, 0), (64, 0)]
         finally:
-            if node.poll() is None:
-                node.kill()
-                node.wait()
+            node.stop()
 
 
 def test_commander_stops_the_motor_and_logs_a_hardware_error(harness):
@@ -150,9 +141,7 @@ def test_commander_stops_the_motor_and_logs_a_hardware_error(harness):
             assert len(errors) == 1 and 'hardware error' in errors[0] \
                 and 'overheating' in errors[0], err
         finally:
-            if node.poll() is None:
-                node.kill()
-                node.wait()
+            node.stop()
 
 
 @pytest.mark.parametrize('case', ['silent', 'missing', 'no port'])

@@ -64,7 +64,7 @@ def check_time_base(time, source='record', tolerance=None):
 
 
 # What a MEMS microball bearing rig can plausibly produce (for unit checks with a hint).
-MAX_TRAVEL = 0.02  # m: a bearing's stroke is millimetres; 2 cm is far beyond any
+MAX_TRAVEL = 0.1  # m: strokes are millimetres (with drift, centimetres); mm values exceed this
 SAMPLE_PERIOD_RANGE = (1e-5, 1.0)  # s: cameras from 1 to 100,000 frames per second
 
 
