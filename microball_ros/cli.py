@@ -586,9 +586,10 @@ def build_parser():
                     'Langevin friction model and its validation by simulation.')
     analyze.add_argument('input', help='position CSV (time,stator_position,slider_position), '
                                        'bag directory or .mcap file')
-    analyze.add_argument('--epsilon', type=_fraction, default=0.02,
-                         help='amplitude-filter threshold, fraction of the largest FFT '
-                              'component (default: 0.02)')
+    analyze.add_argument('--epsilon', type=_fraction, default=None,
+                         help="the paper's fixed amplitude-filter threshold, fraction of the "
+                              'largest FFT component (default: a noise-adaptive threshold, 4 '
+                              "times the spectrum's noise floor)")
     analyze.add_argument('--fit-epsilon', type=_fraction, default=0.0,
                          help='amplitude-filter threshold of the accelerations the Langevin '
                               'model is fitted to (three-stage only; default: 0, see README)')

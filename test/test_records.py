@@ -39,10 +39,10 @@ def test_round_trip_keeps_values_extra_columns_and_gaps(tmp_path):
      "row 3, column 'stator_position': 'abc' is not a number"),
     ('time,stator_position,slider_position\n0,1,2\n0.1,nan,2\n0.2,1,2\n',
      "'nan' is not a finite number"),
-    ('time,stator_position,slider_position\n0,1,2\n0.1,1,2\n0.1,1,2\n0.2,1,2\n',
-     'duplicated time stamp 0.1'),
-    ('time,stator_position,slider_position\n0,1,2\n0.1,1,2\n0.2,1,2\n0.35,1,2\n0.45,1,2\n',
-     'non-uniform sampling'),
+    ('time,stator_position,slider_position\n0,1,2\n0.1,1,2\n0.05,1,2\n0.2,1,2\n',
+     'decreasing time stamp 0.05 after 0.1'),
+    ('time,stator_position,slider_position\n0.1,1,2\n0.1,1,2\n0.1,1,2\n',
+     'every time stamp is 0.1'),
     ('time,stator_position,slider_position\n0,1,2\n0.1,1\n', 'row 3 has 2 cells'),
     ('time,stator_position,slider_position\n0,1,2\n,1,2\n0.2,1,2\n', 'row 3 has no time stamp'),
 ])
@@ -125,3 +125,11 @@ def test_wrong_units_are_refused_saying_what_they_look_like(tmp_path, time_scale
     with pytest.raises(RecordError) as error:
         read_positions_csv(str(path))
     assert message in str(error.value) and str(path) in str(error.value)
+
+
+def test_gaps_duplicates_and_jitter_are_read_for_the_analysis(tmp_path):
+    # Issue 13: a missing row, a duplicated stamp or jittered stamps are analysed (the
+    # pipeline puts them on the frame grid), so the reader no longer refuses them.
+    text = 'time,stator_position,slider_position\n0,1,2\n0.1,1,2\n0.1,1,2\n0.35,1,2\n0.401,1,2\n'
+    record = read_positions_csv(_write(tmp_path, text))
+    assert record.time.tolist() == [0, 0.1, 0.1, 0.35, 0.401]

@@ -11,9 +11,8 @@ import os
 
 import numpy as np
 
-from microball_ros.core import estimation, friction
-from microball_ros.core import memory as memory_test
-from microball_ros.core.errors import FitError
+from microball_ros.core import pipeline
+from microball_ros.core.errors import InputError
 from microball_ros.core.records import PositionRecord, RecordError
 from microball_ros.io.positions_csv import read_positions_csv
 
@@ -29,67 +28,113 @@ STEADY_TOLERANCE = 0.01
 
 @dataclass(frozen=True)
 class AnalysisResult:
-    """Everything ``microball analyze`` reports about one record."""
+    """Everything ``microball analyze`` reports about one record (a core PipelineResult)."""
 
     source: str
-    method: str
-    epsilon: float
-    exposure: float
-    fit_epsilon: object  # float for the three-stage method, else None
-    sample_period: float
-    fundamental_frequency: float
-    window: PositionRecord  # the analysed stretch: the longest run of valid samples
+    pipeline: pipeline.PipelineResult
+    window: PositionRecord  # the longest analysed run (figures, validation)
     samples_invalid: int
-    estimate: estimation.Estimate
-    memory: memory_test.MemoryTest
-    fit: friction.FitResult
-    comparison: tuple  # friction.LawComparison per static law: fitted by AIC, then failed
-    validation: friction.ValidationResult
+
+    method = property(lambda self: self.pipeline.options.method)
+    epsilon = property(lambda self: self.pipeline.options.epsilon)
+    exposure = property(lambda self: self.pipeline.options.exposure)
+    fit_epsilon = property(lambda self: self.pipeline.options.fit_epsilon)
+    sample_period = property(lambda self: self.pipeline.sample_period)
+    fundamental_frequency = property(lambda self: self.pipeline.frequency)
+    estimate = property(lambda self: self.pipeline.estimate)
+    memory = property(lambda self: self.pipeline.phase_test)
+    loop = property(lambda self: self.pipeline.loop)
+    fit = property(lambda self: self.pipeline.fit)
+    comparison = property(lambda self: self.pipeline.comparison)
+    validation = property(lambda self: self.pipeline.validation)
+    warnings = property(lambda self: self.pipeline.warnings)
 
     def to_json(self):
         """Return the JSON object of the CLI contract (DESIGN.md section 5), plus extras.
 
         An interval end the data cannot bound (an open profile) is written as null.
         """
-        params = self.fit.params
+        result = self.pipeline
         return {
             'source': self.source,
             'method': self.method,
             'epsilon': self.epsilon,
+            'epsilon_rule': 'noise-adaptive' if self.epsilon is None else 'fixed',
             'exposure': self.exposure,
             'sample_period': self.sample_period,
             'fundamental_frequency': self.fundamental_frequency,
+            'samples_used': result.samples_used,
+            'samples_total': result.samples_total,
             'window': {'start': float(self.window.time[0]), 'end': float(self.window.time[-1]),
-                       'samples_used': len(self.window.time),
+                       'samples_used': result.samples_used,
                        'samples_invalid': self.samples_invalid},
             'phase_difference': self.memory.phase_difference,
             'phase_uncertainty': self.memory.uncertainty,
-            'memoryless': self.memory.memoryless,
-            'memory_test': {'k': self.memory.k, 'margin': self.memory.margin,
-                            'periods': self.memory.periods, 'blocks': self.memory.blocks},
-            'model': {
-                'name': self.fit.name,
-                'A': params['A'],
-                'alpha': params['alpha'],
-                'A_ci95': _interval(self.fit.ci95['A']),
-                'alpha_ci95': _interval(self.fit.ci95['alpha']),
-                'A_alpha_correlation': _finite_or_none(self.fit.correlation[0, 1]),
-                'low_velocity_slope': params['A'] * params['alpha'] / 3.0,
-                'identifiable': self.fit.identifiable,
-                'rmse': self.fit.rmse,
-                'sample_count': self.fit.n,
-                'fit_epsilon': self.fit_epsilon,
-            },
+            'memoryless': result.memory_verdict == 'memoryless',
+            'memory_verdict': result.memory_verdict,
+            'memory_test': {**result.loop.to_json(),
+                            'phase_test_memoryless': self.memory.memoryless,
+                            'periods': self.memory.periods, 'blocks_phase': self.memory.blocks},
+            'model': _model_entry(result),
             'comparison': [_comparison_entry(entry) for entry in self.comparison],
-            'validation': {
-                'periods': min(VALIDATION_PERIODS, len(self.window.time) * self.sample_period
-                               * self.fundamental_frequency),
-                'slider_amplitude_simulated': self.validation.slider_amplitude_simulated,
-                'slider_amplitude_measured': self.validation.slider_amplitude_measured,
-                'phase_simulated': self.validation.phase_simulated,
-                'phase_measured': self.validation.phase_measured,
-            },
+            'validation': _validation_entry(self.validation, result),
+            'dynamic_model': _dynamic_entry(result.dynamic_model),
+            'warnings': [{'code': code, 'message': message} for code, message in self.warnings],
         }
+
+
+def _model_entry(result):
+    fit = result.fit
+    if fit is None:
+        return {'name': 'langevin', 'A': None, 'alpha': None, 'A_ci95': [None, None],
+                'alpha_ci95': [None, None], 'rmse': None, 'identifiable': False,
+                'degenerate': False}
+    params = fit.params
+    entry = {
+        'name': fit.name,
+        'A': params['A'],
+        'alpha': params['alpha'],
+        'A_ci95': _interval(fit.ci95['A']),
+        'alpha_ci95': _interval(fit.ci95['alpha']),
+        'A_alpha_correlation': _finite_or_none(fit.correlation[0, 1]),
+        'low_velocity_slope': params['A'] * params['alpha'] / 3.0,
+        'identifiable': fit.identifiable,
+        'degenerate': result.viscous_limit is not None,
+        'rmse': fit.rmse,
+        'sample_count': fit.n,
+        'fit_epsilon': result.options.fit_epsilon,
+    }
+    if result.viscous_limit is not None:
+        c, interval = result.viscous_limit
+        entry['viscous_limit'] = {'c': c, 'c_ci95': _interval(interval)}
+    return entry
+
+
+def _validation_entry(validation, result):
+    if validation is None:
+        return None
+    return {
+        'periods': min(VALIDATION_PERIODS, validation.simulated_slider_position.size
+                       * result.sample_period * result.frequency),
+        'slider_amplitude_simulated': validation.slider_amplitude_simulated,
+        'slider_amplitude_measured': validation.slider_amplitude_measured,
+        'phase_simulated': validation.phase_simulated,
+        'phase_measured': validation.phase_measured,
+    }
+
+
+def _dynamic_entry(dynamic):
+    if dynamic is None:
+        return None
+    validation = dynamic.get('validation')
+    return {'name': dynamic['name'], 'params': dynamic['params'],
+            'ci95': {name: _interval(b) for name, b in dynamic['ci95'].items()},
+            'aic': dynamic['aic'], 'rmse': dynamic['rmse'],
+            'validation': None if validation is None else {
+                'slider_amplitude_simulated': validation.slider_amplitude_simulated,
+                'slider_amplitude_measured': validation.slider_amplitude_measured,
+                'phase_simulated': validation.phase_simulated,
+                'phase_measured': validation.phase_measured}}
 
 
 def _comparison_entry(entry):
@@ -193,123 +238,95 @@ def steady_periods(time, stator, tolerance=STEADY_TOLERANCE):
     return int(up[first]) + 1, int(up[last]) + 1
 
 
-def _valid_window(record, source):
-    """Return the longest stretch of the record where both marks were measured."""
-    start, stop = longest_valid_run(record.valid)
-    if stop - start < 3:
-        raise RecordError(f'{source}: no stretch of valid samples (both marks measured)')
-    return _stretch(record, start, stop)
-
-
-def _stretch(record, start, stop):
-    span = slice(start, stop)
-    return PositionRecord(time=record.time[span], stator_position=record.stator_position[span],
-                          slider_position=record.slider_position[span],
-                          extra={name: column[span] for name, column in record.extra.items()})
-
-
-def _check_oscillation(time, stator, dt, source):
-    """Return the stator's fundamental frequency, or raise if there is no usable oscillation."""
-    if np.ptp(stator) == 0:
-        raise RecordError(f'{source}: the stator does not move (no oscillation)')
-    frequency = estimation.fundamental_frequency(stator, dt)
-    amplitude, _ = friction.fit_sinusoid(time, stator, frequency)
-    residual = np.std(stator - np.mean(stator))
-    # A sinusoid of amplitude R has standard deviation R / sqrt(2).
-    if not (frequency > 0 and amplitude / math.sqrt(2) > 0.5 * residual):
-        raise RecordError(f'{source}: no oscillation found in the stator position')
-    periods = (time[-1] - time[0] + dt) * frequency
-    if periods < MIN_PERIODS:
-        raise RecordError(f'{source}: too short: {periods:.1f} stator periods of '
-                          f'{frequency:.3g} Hz, need at least {MIN_PERIODS}')
-    return frequency
-
-
-def analyze_record(record: PositionRecord, method='three-stage', epsilon=0.02, fit_epsilon=0.0,
+def analyze_record(record: PositionRecord, method='three-stage', epsilon=None, fit_epsilon=0.0,
                    exposure=0.0, source='record'):
-    """Run the whole analysis on a record; raise RecordError on data that cannot be analysed.
+    """Run the one analysis (core.pipeline) on a record; RecordError if it cannot be used.
 
-    FitError if the Langevin law cannot be fitted; another static law that cannot be fitted
-    shows as a failed entry of ``comparison`` and does not stop the analysis.
-
-    The derivatives, the figures and the memory test use ``method`` (and ``epsilon`` for the
-    three-stage method). The friction model of the three-stage method is fitted to the
-    velocity at ``epsilon`` and the acceleration at ``fit_epsilon``, 0 by default (nothing
-    filtered). The two play different parts in a least-squares fit a = L(v):
-    - the acceleration is the response: its noise does not bias the fit, and the intervals
-      assume it independent from sample to sample. The amplitude filter leaves the residuals
-      smooth and correlated, and the intervals come out too narrow;
-    - the velocity is the regressor: its noise biases the fit (errors in variables). The
-      unfiltered velocity's noise (0.14 mm/s, 1.5 % of its amplitude) pulls A down and alpha
-      up along their correlated valley while A alpha / 3 stays put.
-    Measured on the 'paper' scenario (exposure 1/60 s; truth A = 1.2, alpha = 110), 300 s,
-    four seeds: this fit gives A = 1.18-1.20, every 95 % interval covering the truth; both
-    unfiltered, A = 1.14-1.16 and no interval covers 1.2 (an hour: A = 1.153 [1.143, 1.164]);
-    both at 0.02, 40 s: A = 1.184 [1.179, 1.190], too narrow.
+    ``epsilon`` None: the noise-adaptive amplitude threshold (the default); a number: the
+    paper's fixed threshold. The friction model of the three-stage method is fitted to the
+    velocity at that threshold and the acceleration at ``fit_epsilon``, 0 by default (nothing
+    filtered): the acceleration is the response, its noise does not bias the fit and the
+    intervals need it; the velocity is the regressor, whose noise biases it (errors in
+    variables), so it is filtered.
     ``exposure`` (s) is the camera's: the three-stage method then undoes the averaging of
-    each frame over its exposure (estimation.three_stage).
+    each frame over it (estimation.three_stage).
     """
-    if method not in METHODS:
-        raise RecordError(f'unknown method {method!r}; choose one of {", ".join(METHODS)}')
-    window = _valid_window(record, source)
-    dt = float(np.median(np.diff(window.time)))
-    frequency = _check_oscillation(window.time, window.stator_position, dt, source)
-    start, stop = steady_periods(window.time, window.stator_position)
-    if (start, stop) != (0, len(window.time)):
-        window = _stretch(window, start, stop)
-        frequency = _check_oscillation(window.time, window.stator_position, dt, source)
-    time, stator, slider = window.time, window.stator_position, window.slider_position
-    options = {'epsilon': epsilon, 'exposure': exposure} if method == 'three-stage' else {}
-    est, memory = memory_test.relative_memory_test(time, stator, slider, method,
-                                                  frequency=frequency, **options)
-    fitted = est
-    if method == 'three-stage' and fit_epsilon != epsilon:
-        fitted = estimation.estimate_relative(time, stator, slider, method,
-                                              **{**options, 'epsilon': fit_epsilon},
-                                              fundamental=frequency)
-    # The other static laws are auxiliary: one that cannot be fitted is recorded in the
-    # comparison (ok false, its error), never raised. The Langevin law is the result.
-    comparison = tuple(friction.compare_laws(est.velocity, fitted.acceleration))
-    langevin = next(entry for entry in comparison if entry.name == 'langevin')
-    if not langevin.ok:
-        raise FitError(f'{source}: the Langevin model cannot be fitted: {langevin.error}')
-    fit = langevin.fit
-    validation = friction.validate(fit.law, time, stator, slider, frequency,
-                                   max_periods=VALIDATION_PERIODS)
-    return AnalysisResult(
-        source=source, method=method, epsilon=float(epsilon), exposure=float(exposure),
-        fit_epsilon=float(fit_epsilon) if method == 'three-stage' else None, sample_period=dt,
-        fundamental_frequency=float(frequency), window=window,
-        samples_invalid=int(np.count_nonzero(~record.valid)), estimate=est, memory=memory,
-        fit=fit, comparison=comparison, validation=validation)
+    options = pipeline.Options(method=method, epsilon=epsilon, fit_epsilon=fit_epsilon,
+                               exposure=exposure, validation_periods=VALIDATION_PERIODS)
+    try:
+        result = pipeline.analyze_positions(record.time, record.stator_position,
+                                            record.slider_position, options=options,
+                                            source=source)
+    except RecordError:
+        raise
+    except InputError as error:
+        raise RecordError(str(error)) from None
+    grid = result.grid
+    a, b = max(result.runs, key=lambda r: r[1] - r[0])
+    span = slice(a, b)
+    seen = grid.measured[span]
+    extra = {}
+    if len(record.time) == len(grid.time) and not grid.notes:
+        extra = {name: column[span][seen] for name, column in record.extra.items()}
+    window = PositionRecord(time=grid.time[span][seen], stator_position=grid.stator[span][seen],
+                            slider_position=grid.slider[span][seen], extra=extra)
+    return AnalysisResult(source=source, pipeline=result, window=window,
+                          samples_invalid=int(np.count_nonzero(~record.valid)))
 
 
 def summary_lines(result):
-    """Return the human-readable summary printed by ``microball analyze``."""
-    model = result.to_json()['model']
-    validation = result.validation
+    """Return the human-readable summary printed by ``microball analyze``, warnings last."""
+    data = result.to_json()
+    model, loop = data['model'], result.loop
 
     def interval(bounds):
         return '[' + ', '.join('inf' if b is None else f'{b:.4g}' for b in bounds) + ']'
 
-    verdict = 'memoryless' if result.memory.memoryless else 'HYSTERETIC (friction has memory)'
+    verdicts = {'memoryless': 'memoryless', 'memory': 'HAS MEMORY (hysteresis)',
+                'undetermined': 'UNDETERMINED (the data cannot decide)'}
+    epsilon = ('noise-adaptive threshold' if result.epsilon is None
+               else f'epsilon {result.epsilon:g}')
     lines = [
-        f'method {result.method}, sample period {result.sample_period * 1e3:.2f} ms, '
-        f'fundamental {result.fundamental_frequency:.4f} Hz, '
-        f'{len(result.window.time)} samples used ({result.samples_invalid} invalid)',
-        f'phase difference a_slider vs v_rel: {result.memory.phase_difference:.4f} '
-        f'+- {result.memory.uncertainty:.4f} rad (pi = 3.1416): {verdict}',
-        f"Langevin model: A = {model['A']:.4g} m/s^2 {interval(model['A_ci95'])}, "
-        f"alpha = {model['alpha']:.4g} s/m {interval(model['alpha_ci95'])}, "
-        f"corr {model['A_alpha_correlation']:+.3f}, rmse {model['rmse']:.3g} m/s^2",
-        f"low-velocity slope A alpha / 3 = {model['low_velocity_slope']:.4g} 1/s; "
-        f'best static law by AIC: {result.comparison[0].name}',  # fitted laws come first
-        f'validation (Fig. 9): slider amplitude {validation.slider_amplitude_simulated * 1e3:.4f}'
-        f' mm simulated vs {validation.slider_amplitude_measured * 1e3:.4f} mm measured, '
-        f'slider-stator phase {validation.phase_simulated:.3f} vs '
-        f'{validation.phase_measured:.3f} rad',
+        f'method {result.method} ({epsilon}), sample period {result.sample_period * 1e3:.2f} '
+        f'ms, fundamental {result.fundamental_frequency:.4f} Hz, {data["samples_used"]} of '
+        f'{data["samples_total"]} samples used ({result.samples_invalid} invalid)',
+        f'memory: {verdicts[result.pipeline.memory_verdict]}; loop statistic '
+        f'{loop.statistic:+.4f} +- '
+        f'{loop.uncertainty:.4f} rad (bound on unresolved harmonics {loop.bias_bound:.4f}); '
+        f'fundamental phase a_slider vs v_rel {result.memory.phase_difference:.4f} +- '
+        f'{result.memory.uncertainty:.4f} rad (pi = 3.1416)',
     ]
-    return lines + comparison_failures(result)
+    if result.fit is None:
+        lines.append('Langevin model: not fitted (see warnings)')
+    elif model['degenerate']:
+        limit = model['viscous_limit']
+        lines.append(f"Langevin model degenerate: viscous limit c = A alpha / 3 = "
+                     f"{limit['c']:.4g} 1/s {interval(limit['c_ci95'])}; rmse "
+                     f"{model['rmse']:.3g} m/s^2")
+    else:
+        lines.append(f"Langevin model: A = {model['A']:.4g} m/s^2 {interval(model['A_ci95'])}, "
+                     f"alpha = {model['alpha']:.4g} s/m {interval(model['alpha_ci95'])}, "
+                     f"corr {model['A_alpha_correlation']:+.3f}, rmse {model['rmse']:.3g} "
+                     f"m/s^2")
+        lines.append(f"low-velocity slope A alpha / 3 = {model['low_velocity_slope']:.4g} 1/s")
+    fitted = [entry for entry in result.comparison if entry.ok]
+    if fitted:
+        lines.append(f'best static law by AIC: {fitted[0].name}')
+    validation = result.validation
+    if validation is not None:
+        lines.append(
+            'validation (Fig. 9): slider amplitude '
+            f'{validation.slider_amplitude_simulated * 1e3:.4f}'
+            f' mm simulated vs {validation.slider_amplitude_measured * 1e3:.4f} mm measured, '
+            f'slider-stator phase {validation.phase_simulated:.3f} vs '
+            f'{validation.phase_measured:.3f} rad')
+    dynamic = data['dynamic_model']
+    if dynamic is not None:
+        params = ', '.join(f'{name} = {value:.4g} {interval(dynamic["ci95"][name])}'
+                           for name, value in dynamic['params'].items())
+        lines.append(f"dynamic model {dynamic['name']}: {params}; AIC {dynamic['aic']:.1f}")
+    lines += comparison_failures(result)
+    return lines + [f'WARNING [{code}]: {message}' for code, message in result.warnings]
 
 
 def comparison_failures(result):

@@ -3,7 +3,8 @@
 matplotlib with the Agg backend: no display needed. Each figure is drawn from an
 AnalysisResult and its analysed window; nothing here changes a number. The model figure and
 summary.txt also list the static-law comparison, naming any law that could not be fitted and
-why.
+why; summary.txt ends with the analysis's warnings (code and message), as printed. The figures
+draw the longest analysed run; they do not yet mark the warnings (a later issue).
 """
 
 import csv
@@ -19,6 +20,7 @@ import numpy as np  # noqa: E402
 
 from microball_ros.app.analysis import summary_lines  # noqa: E402
 from microball_ros.core import estimation, memory  # noqa: E402
+from microball_ros.core.pipeline import three_stage_options  # noqa: E402
 
 COMPARED_METHODS = ('forward', 'lowpass-forward', 'three-stage')
 
@@ -37,7 +39,7 @@ def _relative_estimates(result, method):
     if method == result.method:
         return result.estimate
     window = result.window
-    options = ({'epsilon': result.epsilon, 'exposure': result.exposure,
+    options = ({**three_stage_options(result.pipeline.options),
                 'fundamental': result.fundamental_frequency} if method == 'three-stage' else {})
     return estimation.estimate_relative(window.time, window.stator_position,
                                         window.slider_position, method, **options)
@@ -92,8 +94,14 @@ def figure_methods(result, path):
 
 
 def figure_model(result, path):
-    """Fig. 8: the fitted Langevin model over the estimated samples."""
+    """Fig. 8: the fitted Langevin model over the estimated samples (the data alone if none)."""
     est, fit = result.estimate, result.fit
+    if fit is None:
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        ax.plot(est.velocity * 1e3, -est.acceleration, '.', ms=2, alpha=0.5)
+        ax.set_title('no Langevin model could be fitted (see the warnings)')
+        _save(fig, path)
+        return
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.plot(est.velocity * 1e3, -est.acceleration, '.', ms=2, alpha=0.5,
             label=f'{result.method} estimates')
@@ -132,7 +140,7 @@ def figure_compensation(result, path):
     record), else against each other.
     """
     window, frequency = result.window, result.fundamental_frequency
-    common = {'epsilon': result.epsilon, 'exposure': result.exposure, 'fundamental': frequency}
+    common = {**three_stage_options(result.pipeline.options), 'fundamental': frequency}
     with_stage3 = estimation.estimate_relative(window.time, window.stator_position,
                                                window.slider_position, **common)
     without = estimation.estimate_relative(window.time, window.stator_position,

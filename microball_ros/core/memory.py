@@ -20,6 +20,7 @@ from microball_ros.core.estimation import Estimate, estimate_relative
 from microball_ros.core.harmonics import (
     fundamental_frequency,
     fundamental_phasor,
+    harmonic_design,
     harmonics_below_nyquist,
 )
 
@@ -164,3 +165,204 @@ def relative_memory_test(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt
     uncertainty = max(test.uncertainty, noise.uncertainty)
     return result, replace(test, uncertainty=uncertainty,
                            memoryless=_memoryless(test.phase_difference, uncertainty, k, margin))
+
+
+# ---------------------------------------------------------------------------------------------
+# The loop test: right for saturating static laws, from the positions of the whole record
+# ---------------------------------------------------------------------------------------------
+
+VERDICTS = ('memoryless', 'memory', 'undetermined')
+
+
+@dataclass(frozen=True)
+class LoopTest:
+    """Whether a_slid depends on v_rel alone, from the area of the a_slid - v_rel loop.
+
+    For any static law a = -L(v) of a periodic v the loop area is zero: the integral of a dv
+    over a period is that of -L(v) dv, which vanishes whatever the shape of L (saturating,
+    Stribeck, ...). The area per period is the mean of a_slid times d v_rel / dt, here computed
+    harmonic by harmonic from least-squares Fourier fits of the slider and relative positions
+    (so derivatives are exact, gaps need no filling and every sample counts), and normalised by
+    rms(a_slid) rms(d v_rel/dt): ``correlation`` in [-1, 1], 0 for every memoryless law. For
+    sinusoids it is the sine of the a - v phase's departure from pi, so ``statistic`` =
+    arcsin(correlation) (rad) reads like the phase test (a first-order lag tau gives about
+    atan(w tau)).
+
+    ``uncertainty``: one sigma (rad), the larger of the block spread (batch means over blocks of
+    whole periods) and the propagation of the Fourier coefficients' noise. ``bias_bound`` (rad):
+    what the harmonics above Nyquist, which the samples cannot show, could contribute,
+    extrapolated from the highest harmonics seen (large when the friction saturates hard or
+    the frequency is near Nyquist). Verdict: 'memory' if |statistic| - k sigma - bias_bound >
+    0, 'memoryless' if |statistic| + k sigma + bias_bound <= margin (no loop as large as a
+    phase of ``margin``), else 'undetermined'.
+    """
+
+    verdict: str
+    statistic: float
+    uncertainty: float
+    bias_bound: float
+    correlation: float
+    blocks: int
+    harmonics: int
+    k: float
+    margin: float
+    samples: int
+
+    def to_json(self):
+        """Return the test as a JSON object."""
+        return {'verdict': self.verdict, 'statistic': self.statistic,
+                'uncertainty': self.uncertainty, 'bias_bound': self.bias_bound,
+                'correlation': self.correlation, 'blocks': self.blocks,
+                'harmonics': self.harmonics, 'k': self.k, 'margin': self.margin,
+                'samples': self.samples}
+
+
+def _block_fit(t, columns, frequency, harmonics):
+    """Return (harmonic coefficients [K, 2, ncol], residual variances [ncol], q [K, 2])."""
+    design = harmonic_design(t, frequency, harmonics, 2)
+    coefficients, _, rank, _ = np.linalg.lstsq(design, columns, rcond=None)
+    if rank < design.shape[1]:
+        return None
+    residual = columns - design @ coefficients
+    dof = max(1, len(t) - design.shape[1])
+    variance = np.sum(residual ** 2, axis=0) / dof
+    inverse = np.linalg.inv(design.T @ design)
+    q = np.diag(inverse)[3:].reshape(harmonics, 2)
+    return coefficients[3:].reshape(harmonics, 2, columns.shape[1]), variance, q
+
+
+def _block_harmonics(frequency, dt, block_time):
+    """Return the harmonics a block resolves: below Nyquist, and apart from its mirror."""
+    harmonics = harmonics_below_nyquist(frequency, dt)
+    while harmonics > 1 and abs(1 / dt - 2 * harmonics * frequency) * block_time < 1.0:
+        harmonics -= 1
+    return harmonics
+
+
+def loop_test(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt.ArrayLike,
+              frequency: float, *, segments=None, exposure: float = 0.0, k: float = 3.0,
+              margin: float = 0.1, block_periods: float = 4.0) -> LoopTest:
+    """Run the loop test on positions (NaN where not measured); see LoopTest.
+
+    ``segments``: (start, stop) index ranges analysed separately (contiguous runs), default
+    the whole arrays. Blocks are ``block_periods`` periods or more (long enough to separate
+    the highest harmonic from its alias); each block gets its own frequency, refined from the
+    stator's phase progression, so a slowly varying crank speed is followed.
+    ``exposure`` (s): each frame's averaging over it, undone per harmonic (sinc).
+    """
+    time = np.asarray(time, dtype=float)
+    stator = np.asarray(stator, dtype=float)
+    slider = np.asarray(slider, dtype=float)
+    dt = float(np.median(np.diff(time)))
+    if segments is None:
+        segments = [(0, len(time))]
+    span = max(block_periods, 2.0) / frequency
+    harmonics = _block_harmonics(frequency, dt, span * 4)
+    if harmonics < 2:
+        harmonics = harmonics_below_nyquist(frequency, dt)
+    block_time = max(span, 1.0 / max(abs(1 / dt - 2 * harmonics * frequency), 1e-9))
+    block_time = min(block_time, 16 / frequency)
+    if abs(1 / dt - 2 * harmonics * frequency) * block_time < 1.0 and harmonics > 1:
+        harmonics -= 1
+    blocks = []
+    for start, stop in segments:
+        count = int((time[stop - 1] - time[start] + dt) // block_time)
+        if count < 1:
+            continue
+        edges = np.linspace(start, stop, count + 1).astype(int)
+        blocks += [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    order = np.arange(1, harmonics + 1)
+    omega4 = (2 * np.pi * order * frequency) ** 4
+    blur = np.sinc(order * frequency * exposure)
+    records = []
+    phases = []
+    for a, b in blocks:
+        seen = np.isfinite(stator[a:b]) & np.isfinite(slider[a:b])
+        t = time[a:b][seen]
+        if len(t) < 2 * harmonics + 8:
+            continue
+        columns = np.column_stack([slider[a:b][seen], slider[a:b][seen] - stator[a:b][seen],
+                                   stator[a:b][seen]])
+        fitted = _block_fit(t, columns, frequency, harmonics)
+        if fitted is None:
+            continue
+        records.append((t, columns))
+        phases.append((t[0], fitted[0][0, :, 2]))
+    if len(records) < 1:
+        raise InputError('the loop test needs at least one block of '
+                         f'{block_time * frequency:.3g} periods of measured samples')
+    local = _local_frequencies(phases, frequency)
+    sums = np.zeros(4)  # W, A^2, V^2, var W
+    spread = []
+    tail = np.zeros(harmonics)
+    for (t, columns), f in zip(records, local, strict=True):
+        fitted = _block_fit(t, columns, f, harmonics)
+        if fitted is None:
+            continue
+        coefficients, variance, q = fitted
+        coefficients = coefficients / blur[:, None, None]
+        q = q / blur[:, None] ** 2
+        scale = omega4 * (f / frequency) ** 4
+        xs, xr = coefficients[:, :, 0], coefficients[:, :, 1]
+        noise_s = variance[0] * q
+        w = 0.5 * scale * (np.sum(xs * xr, axis=1) - np.sum(noise_s, axis=1))
+        a2 = 0.5 * np.sum(scale * np.maximum(np.sum(xs ** 2 - noise_s, axis=1), 0))
+        v2 = 0.5 * np.sum(scale * np.maximum(
+            np.sum(xr ** 2 - variance[1] * q, axis=1), 0))
+        var_w = np.sum((0.5 * scale[:, None]) ** 2 * (
+            xr ** 2 * noise_s + xs ** 2 * variance[1] * q + 2 * xs * xr * noise_s))
+        sums += [np.sum(w), a2, v2, var_w]
+        # Amplitudes with their noise taken out: a harmonic at the noise floor adds nothing.
+        tail += 0.5 * scale * np.sqrt(np.maximum(np.sum(xs ** 2 - 2 * noise_s, axis=1), 0)
+                                      * np.maximum(np.sum(xr ** 2 - 2 * variance[1] * q,
+                                                          axis=1), 0))
+        if a2 > 0 and v2 > 0:
+            spread.append(np.sum(w) / np.sqrt(a2 * v2))
+    norm = np.sqrt(sums[1] * sums[2])
+    if not norm > 0:
+        raise InputError('no oscillation of the slider or of the relative position')
+    correlation = float(np.clip(sums[0] / norm, -1, 1))
+    sigma = float(np.sqrt(sums[3]) / norm)
+    if len(spread) >= 3:
+        student = stats.t.ppf(_ONE_SIGMA_QUANTILE, len(spread) - 1)
+        sigma = max(sigma, float(np.std(spread, ddof=1) / np.sqrt(len(spread)) * student))
+    statistic = float(np.arcsin(correlation))
+    sigma = sigma / max(np.sqrt(1 - correlation ** 2), 1e-3)
+    tail = tail / norm
+    if harmonics >= 3:
+        # Products of harmonics of a law with a kink fall as 1/k^2: the rest sum to K times
+        # the last one. The last two count, as a symmetric law has odd harmonics only.
+        bias = float(harmonics * (tail[-1] + tail[-2]))
+    else:
+        bias = float(np.sum(tail))
+    # A crank speed that varies within a block (local frequencies apart) breaks the harmonic
+    # model of the block: harmonic k drifts by 2 pi k df T over it, bounded here.
+    wander = float(np.max(np.abs(np.asarray(local) - frequency))) if len(local) else 0.0
+    bias += 2 * np.pi * wander * block_time * harmonics  # harmonic k drifts k times faster
+    if abs(statistic) - k * sigma - bias > 0:
+        verdict = 'memory'
+    elif abs(statistic) + k * sigma + bias <= margin:
+        verdict = 'memoryless'
+    else:
+        verdict = 'undetermined'
+    return LoopTest(verdict=verdict, statistic=statistic, uncertainty=sigma, bias_bound=bias,
+                    correlation=correlation, blocks=len(records), harmonics=harmonics, k=k,
+                    margin=margin, samples=int(sum(len(t) for t, _ in records)))
+
+
+def _local_frequencies(phases, frequency):
+    """Return each block's frequency from the stator's fundamental phase across blocks.
+
+    ``phases``: (block start time, [cos, sin] of the stator fundamental fitted at
+    ``frequency`` from that start). At a true frequency f + df the phase, referred to a common
+    origin, advances by 2 pi df per second more than at f.
+    """
+    if len(phases) < 3:
+        return [frequency] * len(phases)
+    start = np.array([p[0] for p in phases])
+    angle = np.array([np.arctan2(p[1][0], p[1][1]) for p in phases])
+    phase = np.unwrap(angle - 2 * np.pi * frequency * (start - start[0]))
+    offset = np.gradient(phase, start) / (2 * np.pi)
+    if np.all(np.abs(offset) < 1e-4 * frequency):
+        return [frequency] * len(phases)
+    return list(frequency + offset)

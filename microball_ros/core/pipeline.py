@@ -1,0 +1,264 @@
+"""The one analysis of a position record: what ``microball analyze`` and friction_identifier run.
+
+Pure (arrays in, a PipelineResult out; no files, no rclpy). Steps, one policy for every caller:
+
+1. the samples are put on their frame grid (core.timebase: gaps, dropped frames, duplicated
+   stamps, jitter); contiguous runs are analysed, short holes bridged for the estimator only;
+2. the stator's fundamental; unsteady periods at the ends (a servo starting) are cut;
+3. v_rel and a_slid by the chosen method on every run, covering every sample: the three-stage
+   estimate over the longest whole number of periods from the start, and the same from the end
+   for the samples the first leaves out (the algorithm is symmetric in time);
+4. the memory tests: the paper's fundamental-phase test (reported) and the loop test
+   (core.memory.loop_test), whose verdict is the result's;
+5. every static law fitted (core.friction), intervals widened for correlated residuals
+   (core.friction.honest_intervals), the Langevin law validated by simulation (Fig. 9);
+6. a degenerate (nearly linear) Langevin fit reported as its viscous limit; a dynamic model
+   identified when memory is found; warnings wherever the numbers may be biased.
+"""
+
+from dataclasses import dataclass, field, replace
+import math
+
+import numpy as np
+
+from microball_ros.core import estimation, friction
+from microball_ros.core import memory as memory_tests
+from microball_ros.core.errors import FitError, InputError
+from microball_ros.core.harmonics import fundamental_frequency
+from microball_ros.core.timebase import Grid, regularise
+
+METHODS = ('three-stage', 'forward', 'lowpass-forward')
+MIN_PERIODS = 4
+NEAR_NYQUIST_SAMPLES = 7.0  # fewer samples per period: harmonics lost, estimates biased
+SATURATION = 4.0  # alpha max|v_rel| beyond this: a_slid's harmonics alias at ordinary rates
+VALIDATION_TOLERANCE = (0.05, 0.05)  # relative amplitude, phase (rad)
+
+
+@dataclass(frozen=True)
+class Options:
+    """The analysis policy. ``epsilon`` None: the noise-adaptive amplitude threshold."""
+
+    method: str = 'three-stage'
+    epsilon: float | None = None
+    fit_epsilon: float = 0.0
+    exposure: float = 0.0
+    k: float = 3.0
+    margin: float = 0.1
+    validation_periods: float = 20.0
+    fill: int = 2
+
+
+@dataclass(frozen=True)
+class PipelineResult:
+    """Everything the analysis found; ``warnings`` is a tuple of (code, message)."""
+
+    options: Options
+    grid: Grid
+    sample_period: float
+    frequency: float
+    used: np.ndarray  # grid indices of the samples estimated and fitted
+    estimate: estimation.Estimate  # v_rel and a_slid at the used samples (time = their stamps)
+    fit_acceleration: np.ndarray
+    phase_test: memory_tests.MemoryTest
+    loop: memory_tests.LoopTest
+    fit: object  # friction.FitResult or None (fit-failed)
+    comparison: tuple
+    validation: object  # friction.ValidationResult or None
+    viscous_limit: object  # (c, (lo, hi)) when the Langevin fit is degenerate, else None
+    dynamic_model: object  # dict when memory is found, else None
+    runs: tuple = ()  # (start, stop) grid ranges analysed (contiguous, steady)
+    warnings: tuple = field(default_factory=tuple)
+
+    @property
+    def samples_used(self) -> int:
+        """Return how many measured samples entered the estimates, tests and fits."""
+        return int(len(self.used))
+
+    @property
+    def samples_total(self) -> int:
+        """Return how many samples the input held."""
+        return self.grid.samples_total
+
+    @property
+    def memory_verdict(self) -> str:
+        """Return 'memoryless', 'memory' or 'undetermined'.
+
+        The loop test's verdict for the three-stage method. The other methods reproduce the
+        paper's Fig. 7(a, b): their verdict is their own fundamental-phase test, artifacts
+        included (a 'method-phase-error' warning gives the loop test's).
+        """
+        if self.options.method != 'three-stage':
+            return 'memoryless' if self.phase_test.memoryless else 'memory'
+        return self.loop.verdict
+
+
+def three_stage_options(options: Options, fit=False) -> dict:
+    """Return the three-stage keyword options of the policy (the fit's acceleration if fit)."""
+    common = {'exposure': options.exposure}
+    if fit:
+        return {**common, 'epsilon': options.fit_epsilon, 'noise_floor': False}
+    if options.epsilon is None:  # the noise floor decides alone
+        return {**common, 'epsilon': 1.0, 'noise_floor': 4.0}
+    return {**common, 'epsilon': options.epsilon, 'noise_floor': False}
+
+
+def _covered(x, dt, method, options, frequency):
+    """Return (index, velocity, acceleration) of x over every sample the method can estimate."""
+    if method != 'three-stage':
+        est = estimation.estimate(x, dt, method)
+        return est.index, est.velocity, est.acceleration
+    forward = estimation.three_stage(x, dt, fundamental=frequency, **options)
+    index = np.arange(1, len(x) - 1)
+    velocity = np.empty(len(index))
+    acceleration = np.empty(len(index))
+    velocity[forward.index - 1] = forward.velocity
+    acceleration[forward.index - 1] = forward.acceleration
+    rest = index > forward.index[-1]
+    if np.any(rest):
+        backward = estimation.three_stage(x[::-1], dt, fundamental=frequency, **options)
+        mirrored = len(x) - 1 - backward.index
+        take = np.isin(mirrored, index[rest])
+        velocity[mirrored[take] - 1] = -backward.velocity[take]
+        acceleration[mirrored[take] - 1] = backward.acceleration[take]
+    return index, velocity, acceleration
+
+
+def _estimate_runs(grid, runs, frequency, options):
+    """Return (grid index, v_rel, a_slid, a_slid for the fit, v_rel center, a center) arrays."""
+    pieces = []
+    kinds = [three_stage_options(options), three_stage_options(options, fit=True)]
+    for start, stop in runs:
+        stator, slider = grid.stator[start:stop], grid.slider[start:stop]
+        index, velocity, _ = _covered(slider - stator, grid.dt, options.method, kinds[0],
+                                      frequency)
+        _, _, acceleration = _covered(slider, grid.dt, options.method, kinds[0], frequency)
+        if options.method == 'three-stage' and options.fit_epsilon != options.epsilon:
+            _, _, fit_acceleration = _covered(slider, grid.dt, options.method, kinds[1],
+                                              frequency)
+        else:
+            fit_acceleration = acceleration
+        center = estimation.center_difference(slider - stator, grid.dt)
+        center_a = estimation.center_difference(slider, grid.dt)
+        common = np.intersect1d(index, center.index)
+        mine, theirs = np.isin(index, common), np.isin(center.index, common)
+        pieces.append((start + index[mine], velocity[mine], acceleration[mine],
+                       fit_acceleration[mine], center.velocity[theirs],
+                       center_a.acceleration[theirs]))
+    columns = [np.concatenate(parts) for parts in zip(*pieces, strict=True)]
+    measured = grid.measured[columns[0]]
+    return [column[measured] for column in columns]
+
+
+def _trim_unsteady_ends(grid, runs, frequency):
+    """Cut stator periods off the two ends of the record while they are not steady."""
+    t, x = grid.time, grid.stator - np.nanmedian(grid.stator)
+    up = np.flatnonzero((x[:-1] < 0) & (x[1:] >= 0))
+    if len(up) < 5:
+        return runs
+    crossings = t[up] - x[up] * grid.dt / (x[up + 1] - x[up])
+    periods = np.diff(crossings)
+    ok = np.isfinite(periods) & (periods < 1.5 / frequency)
+    if np.count_nonzero(ok) < 4:
+        return runs
+    deviation = np.abs(periods / np.median(periods[ok]) - 1)
+    spread = np.median(deviation[ok])
+    steady = deviation <= max(0.01, 6 * spread)
+    first = int(np.argmax(steady))
+    last = len(steady) - 1 - int(np.argmax(steady[::-1]))
+    lo = int(up[first]) + 1 if first > 0 else 0
+    hi = int(up[last + 1]) + 1 if last < len(steady) - 1 else len(t)
+    trimmed = [(max(a, lo), min(b, hi)) for a, b in runs]
+    return [(a, b) for a, b in trimmed if b - a >= 3]
+
+
+def _frequency(grid, runs, source):
+    longest = max(runs, key=lambda r: r[1] - r[0])
+    stator = grid.stator[longest[0]:longest[1]]
+    if np.ptp(stator) == 0:
+        raise InputError(f'{source}: the stator does not move (no oscillation)')
+    try:
+        frequency = fundamental_frequency(stator, grid.dt)
+    except InputError:
+        raise InputError(f'{source}: no oscillation found in the stator position') from None
+    amplitude, _ = friction.fit_sinusoid(grid.time[longest[0]:longest[1]], stator, frequency)
+    if not amplitude / math.sqrt(2) > 0.5 * np.std(stator):
+        raise InputError(f'{source}: no oscillation found in the stator position')
+    return frequency
+
+
+def analyze_positions(time, stator, slider, valid=None, options: Options | None = None,
+                      source='record') -> PipelineResult:
+    """Analyse a position record (see the module docstring); InputError if it cannot be used.
+
+    ``time`` (s), ``stator``, ``slider`` (m): one entry per sample, NaN (or ``valid`` False)
+    where a mark was not measured; any order of gaps, duplicates and jitter.
+    """
+    options = options or Options()
+    if options.method not in METHODS:
+        raise InputError(f'unknown method {options.method!r}; choose one of '
+                         f'{", ".join(METHODS)}')
+    grid = regularise(time, stator, slider, valid, fill=options.fill)
+    runs = grid.segments(minimum=16)
+    if not runs:
+        raise InputError(f'{source}: no stretch of 16 consecutive samples with both marks')
+    frequency = _frequency(grid, runs, source)
+    per_period = 1 / (frequency * grid.dt)
+    runs = [(a, b) for a, b in _trim_unsteady_ends(grid, runs, frequency)
+            if b - a >= max(16, 2 * per_period + 2)]
+    if runs:  # the start-up cut: the frequency of the steady motion
+        frequency = _frequency(grid, runs, source)
+        per_period = 1 / (frequency * grid.dt)
+    periods = sum(b - a for a, b in runs) / per_period
+    if periods < MIN_PERIODS:
+        raise InputError(f'{source}: too short: {periods:.1f} stator periods of '
+                         f'{frequency:.3g} Hz in usable stretches, need at least '
+                         f'{MIN_PERIODS}')
+    used, velocity, acceleration, fit_acceleration, center_v, center_a = _estimate_runs(
+        grid, runs, frequency, options)
+    est = estimation.Estimate(time=grid.time[used], velocity=velocity,
+                              acceleration=acceleration, index=used, method=options.method,
+                              sample_period=grid.dt, options=three_stage_options(options))
+    phase = memory_tests.memory_test(est.time, velocity, acceleration, frequency,
+                                     k=options.k, margin=options.margin)
+    noise = memory_tests.memory_test(est.time, center_v, center_a, frequency)
+    phase = replace(phase, uncertainty=max(phase.uncertainty, noise.uncertainty))
+    phase = replace(phase, memoryless=bool(abs(math.pi - phase.phase_difference)
+                                           <= options.k * phase.uncertainty + options.margin))
+    seen = np.where(grid.measured, 1.0, np.nan)
+    loop = memory_tests.loop_test(grid.time, grid.stator * seen, grid.slider * seen, frequency,
+                                  segments=runs, exposure=options.exposure, k=options.k,
+                                  margin=options.margin)
+    from microball_ros.core.pipeline_fit import identify  # the fitting half of the pipeline
+
+    return identify(PipelineResult(
+        options=options, grid=grid, sample_period=grid.dt, frequency=float(frequency),
+        used=used, estimate=est, fit_acceleration=fit_acceleration, phase_test=phase,
+        loop=loop, fit=None, comparison=(), validation=None, viscous_limit=None,
+        dynamic_model=None, runs=tuple(runs)), runs, per_period)
+
+
+def analyze_windows(windows, options: Options | None = None, source='windows'):
+    """Analyse the union of windows' positions: the friction_identifier's entry point.
+
+    ``windows``: iterable of (time, stator, slider) arrays, e.g. from DerivativeEstimate
+    messages (their ``time``, ``stator_position``, ``slider_position``). Samples are merged by
+    stamp (rounded to the nanosecond, the first window's value kept) and sorted, then analysed
+    exactly as analyze_positions analyses a record holding those samples.
+    """
+    windows = list(windows)
+    if not windows:
+        raise InputError(f'{source}: no windows')
+    time = np.concatenate([np.asarray(w[0], dtype=float) for w in windows])
+    stator = np.concatenate([np.asarray(w[1], dtype=float) for w in windows])
+    slider = np.concatenate([np.asarray(w[2], dtype=float) for w in windows])
+    _, first = np.unique(np.round(time * 1e9).astype(np.int64), return_index=True)
+    return analyze_positions(time[first], stator[first], slider[first], options=options,
+                             source=source)
+
+
+def fit_or_none(v, a, law):
+    """Return the FitResult of a law, or None if it cannot be fitted."""
+    try:
+        return friction.fit_least_squares(v, a, law)
+    except FitError:
+        return None

@@ -1,0 +1,146 @@
+"""core.pipeline: one analysis for analyze and the identifier node, whole records, verdicts.
+
+Records come from an independent model written here (not core.bench): the slider ODE
+a = -F(v_rel) (or a first-order lag of it) integrated by scipy's solve_ivp (RK45, tight
+tolerances) under a pure sinusoidal stator, sampled at the frame times.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from microball_ros.core import estimation, pipeline
+from microball_ros.core.windowing import PositionWindower, Window
+
+
+def _langevin(v, A=1.2, alpha=110.0):
+    x = alpha * v
+    small = np.abs(x) < 1e-3
+    safe = np.where(small, 1.0, x)
+    return A * np.where(small, x / 3, 1 / np.tanh(safe) - 1 / safe)
+
+
+def _record(duration, *, fps=30.0, frequency=2.95, amplitude=1.2e-3, noise=2e-6, tau=0.0,
+            law=_langevin, seed=0):
+    """Independent rig: stator X sin(w t); slider a = -F, F = law(v_rel) or lagged by tau."""
+    w = 2 * math.pi * frequency
+
+    def rhs(t, y):
+        v_rel = y[1] - amplitude * w * math.cos(w * t)
+        force = y[2] if tau else law(np.array([v_rel]))[0]
+        dforce = (law(np.array([v_rel]))[0] - y[2]) / tau if tau else 0.0
+        return [y[1], -force, dforce]
+
+    settle = 3.0
+    t = np.arange(int(duration * fps)) / fps
+    solution = solve_ivp(rhs, (-settle, t[-1]), [0.0, 0.0, 0.0], t_eval=t, rtol=1e-10,
+                         atol=1e-13, max_step=2e-3)
+    rng = np.random.default_rng(seed)
+    stator = amplitude * np.sin(w * t) + rng.normal(0, noise, t.size)
+    slider = solution.y[0] + rng.normal(0, noise, t.size)
+    return t, stator, slider
+
+
+def _node_windows(t, stator, slider, epsilon=0.0):
+    """Cut positions as the estimator node does; return what its messages carry."""
+    windower = PositionWindower()
+    out = []
+    for k in range(t.size):
+        for event in windower.push(t[k], k, stator[k], slider[k]):
+            if isinstance(event, Window):
+                est = estimation.estimate_relative(event.time, event.stator_position,
+                                                   event.slider_position, epsilon=epsilon,
+                                                   fundamental=event.frequency)
+                out.append((event.time[est.index], event.stator_position[est.index],
+                            event.slider_position[est.index]))
+    return out
+
+
+def test_the_node_entry_point_gives_the_numbers_analyze_gives():
+    t, stator, slider = _record(30.0)
+    windows = _node_windows(t, stator, slider)
+    node = pipeline.analyze_windows(windows)
+    stamps = np.unique(np.concatenate([w[0] for w in windows]))
+    keep = np.isin(t, stamps)
+    direct = pipeline.analyze_positions(t[keep], stator[keep], slider[keep])
+    assert node.samples_used == direct.samples_used
+    assert node.fit.params == direct.fit.params
+    assert node.fit.ci95 == direct.fit.ci95
+    assert node.loop == direct.loop
+    assert node.memory_verdict == direct.memory_verdict == 'memoryless'
+    # The windows cover all but the record's tail: the union is nearly the whole record.
+    assert keep.mean() > 0.85
+
+
+def test_every_sample_is_used_and_intervals_shrink_as_one_over_root_n():
+    widths, used = [], []
+    for duration in (20.0, 80.0):
+        t, stator, slider = _record(duration, seed=3)
+        result = pipeline.analyze_positions(t, stator, slider)
+        assert result.samples_used / result.samples_total >= 0.99
+        lo, hi = result.fit.ci95['A']
+        assert lo < 1.2 < hi
+        widths.append(hi - lo)
+        used.append(result.samples_used)
+    # 4x the samples: half the width, within the spread of one seed's interval estimate.
+    assert widths[0] / widths[1] == pytest.approx(math.sqrt(used[1] / used[0]), rel=0.3)
+
+
+@pytest.mark.parametrize('name, law, tau, verdict', [
+    ('paper Langevin', _langevin, 0.0, 'memoryless'),
+    ('saturating Langevin alpha 2000', lambda v: _langevin(v, 1.2, 2000.0), 0.0,
+     'memoryless'),
+    ('lag 10 ms', _langevin, 0.010, 'memory'),
+    ('lag 40 ms', _langevin, 0.040, 'memory'),
+])
+def test_the_loop_test_is_right_for_saturating_laws_and_catches_lags(name, law, tau, verdict):
+    t, stator, slider = _record(20.0, law=law, tau=tau)
+    result = pipeline.analyze_positions(t, stator, slider)
+    assert result.memory_verdict == verdict, (name, result.loop)
+    if tau:
+        # For a lag the statistic is about atan(w tau).
+        expected = math.atan(2 * math.pi * 2.95 * tau)
+        assert result.loop.statistic == pytest.approx(expected, rel=0.15)
+        assert result.dynamic_model is not None
+
+
+def test_gaps_duplicates_and_jitter_are_analysed_with_a_gaps_warning():
+    t, stator, slider = _record(20.0, seed=5)
+    rng = np.random.default_rng(1)
+    keep = np.ones(t.size, dtype=bool)
+    keep[200:215] = False  # a 0.5 s gap
+    keep[rng.choice(np.arange(20, t.size - 20), 6, replace=False)] = False  # dropped frames
+    stamps = t + rng.uniform(-1e-3, 1e-3, t.size)  # jittered stamps, positions on the grid
+    stamps[400] = stamps[399]  # a duplicated stamp
+    clean = pipeline.analyze_positions(t, stator, slider)
+    messy = pipeline.analyze_positions(stamps[keep], stator[keep], slider[keep])
+    assert 'gaps' in {code for code, _ in messy.warnings}
+    assert not [code for code, _ in clean.warnings if code == 'gaps']
+    assert messy.samples_used / messy.samples_total >= 0.9
+    assert messy.memory_verdict == 'memoryless'
+    lo, hi = messy.fit.ci95['A']
+    assert lo < 1.2 < hi
+    # A and alpha trade off along their valley; their product (the slope at 0) is sharp.
+    def slope(result):
+        return result.fit.params['A'] * result.fit.params['alpha'] / 3
+
+    assert slope(messy) == pytest.approx(slope(clean), rel=0.01)
+    assert slope(messy) == pytest.approx(44.0, rel=0.02)
+
+
+def test_a_linear_record_is_reported_as_its_viscous_limit():
+    t, stator, slider = _record(20.0, law=lambda v: 30.0 * v)
+    result = pipeline.analyze_positions(t, stator, slider)
+    assert 'degenerate' in {code for code, _ in result.warnings}
+    c, (lo, hi) = result.viscous_limit
+    assert lo < 30.0 < hi and math.isfinite(hi)
+    assert c == pytest.approx(30.0, rel=0.02)
+
+
+def test_near_nyquist_is_warned_and_not_called_memoryless():
+    t, stator, slider = _record(20.0, fps=15.0, frequency=4.9, amplitude=0.8e-3)
+    result = pipeline.analyze_positions(t, stator, slider)
+    assert 'near-nyquist' in {code for code, _ in result.warnings}
+    assert result.memory_verdict == 'undetermined'
