@@ -5,7 +5,6 @@ a process with the YAML as --params-file and its parameters read back through th
 rcl_interfaces GetParameters service of that node.
 """
 
-import ast
 import os
 import signal
 import subprocess
@@ -33,23 +32,30 @@ NODES = ('servo_commander', 'bench_simulator', 'camera_source', 'camera_tracker'
 
 
 def _setup_call():
-    """Return the keyword arguments of setup() in setup.py, as literals where they are."""
-    tree = ast.parse(open(os.path.join(ROOT, 'setup.py')).read())
-    call = next(node for node in ast.walk(tree)
-                if isinstance(node, ast.Call) and getattr(node.func, 'id', '') == 'setup')
-    return {k.arg: k.value for k in call.keywords}
+    """Return the keyword arguments setup.py passes to setup(), by running it (setup stubbed)."""
+    import runpy
+    from unittest import mock
+
+    captured = {}
+    cwd = os.getcwd()
+    try:
+        os.chdir(ROOT)  # setup.py globs paths relative to the package root, as pip runs it
+        with mock.patch('setuptools.setup', lambda **kwargs: captured.update(kwargs)):
+            runpy.run_path('setup.py', run_name='__main__')
+    finally:
+        os.chdir(cwd)
+    return captured
 
 
 def console_scripts():
     """Return console-script name -> 'module:function' from setup.py."""
-    entry_points = ast.literal_eval(_setup_call()['entry_points'])
+    entry_points = _setup_call()['entry_points']
     return dict(line.replace(' ', '').split('=') for line in entry_points['console_scripts'])
 
 
 def data_files():
-    """Return the data_files of setup.py as (directory, [files]) with package_name filled."""
-    source = ast.unparse(_setup_call()['data_files'])
-    return eval(source, {'package_name': 'microball_ros', 'glob': lambda p: [p]})  # noqa: S307
+    """Return the data_files of setup.py as (directory, [files])."""
+    return _setup_call()['data_files']
 
 
 def flatten(mapping, prefix=''):

@@ -227,7 +227,17 @@ def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=N
                          f'{SPEC_KEY} entry')
     types = _output_types(bag, outputs, inputs, spec)
     name = _node_name(node, node_name, spec)
+    # Lock-step publishes the next message once the node's reader has the previous one, not
+    # once the node has processed it: every input subscription must be reliable and deep
+    # enough to hold the whole replay (a camera node subscribes best effort, depth 5, by
+    # default). The standard qos_overrides parameters say so.
+    reliable_inputs = {}
+    for topic in inputs:
+        depth = min(max(bag.topics[topic].count if topic in bag.topics else 1, 1), 100000)
+        reliable_inputs[f'qos_overrides.{topic}.subscription.reliability'] = 'reliable'
+        reliable_inputs[f'qos_overrides.{topic}.subscription.depth'] = depth
     values = {**recorded_parameters(bag, spec.get('node') or name), **(parameters or {})}
+    node_values = {**reliable_inputs, **values}
     expected = dict(expected or {t: bag.topics[t].count if t in bag.topics else 0
                                  for t in types})
     own_context = context is None and not isinstance(node, Node)
@@ -250,13 +260,14 @@ def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=N
         if player.skipped_types:
             raise ValueError(f'{bag.path}: cannot publish {player.skipped_types}')
         if isinstance(node, (str, list, tuple)):
-            process = harness.watch(NodeProcess(node, values, name=name, log_dir=log_dir))
+            process = harness.watch(NodeProcess(node, node_values, name=name,
+                                                log_dir=log_dir))
             process.start()
         elif isinstance(node, Node):
             harness.executor.add_node(node)
         else:
             harness.add(node(context=context, parameter_overrides=[
-                Parameter(k, value=v) for k, v in values.items()]))
+                Parameter(k, value=v) for k, v in node_values.items()]))
         harness.spin_until(
             lambda: all(p.get_subscription_count() >= 1
                         for p in player.publishers_by_topic.values())
