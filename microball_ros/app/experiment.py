@@ -105,7 +105,7 @@ def node_parameters(scenario_name, duration, speed, output=None, params_file=Non
                            'meters_per_pixel': rig.camera_for(scenario).meters_per_pixel,
                            **sim_time},
         'three_stage_estimator': {'exposure': rig.camera_for(scenario).exposure, **sim_time},
-        'friction_identifier': dict(sim_time),
+        'friction_identifier': {'exposure': rig.camera_for(scenario).exposure, **sim_time},
     }
     # Inside a run every frame must reach the tracker even when it falls seconds behind.
     for name, role in (('bench_simulator', 'publisher'), ('camera_tracker', 'subscription')):
@@ -280,6 +280,7 @@ def summary_lines(monitor, scenario_name):
         'HYSTERETIC (friction has memory)'
     model = monitor.models[-1]
     truth = bench.get_scenario(scenario_name).law
+    notes = [f'WARNING [{text}' .replace(':', ']:', 1) for text in model.warnings]
     return [
         f'memory test: {memoryless} of {len(monitor.windows)} windows memoryless; phase '
         f'difference median {np.median(phases):.4f} rad (range {phases.min():.4f} .. '
@@ -290,6 +291,9 @@ def summary_lines(monitor, scenario_name):
         f'validation (Fig. 9): slider amplitude {model.slider_amplitude_simulated * 1e3:.4f} mm '
         f'simulated vs {model.slider_amplitude_measured * 1e3:.4f} mm measured, phase '
         f'{model.phase_simulated:.3f} vs {model.phase_measured:.3f} rad',
+        f'memory verdict of the whole record (loop test, as `microball analyze`): '
+        f'{model.memory_verdict}',
+        *notes,
         f'bench truth: {truth.name} {truth.params}',
     ]
 

@@ -70,24 +70,31 @@ def estimate_arrays(msg):
         msg.slider_position))
 
 
-def friction_model(header, fit, validation, window_count):
-    """Build a FrictionModel from a Langevin FitResult and a ValidationResult."""
+def friction_model(header, result, window_count):
+    """Build a FrictionModel from a core pipeline result (its Langevin fit and validation).
+
+    A fit that failed (warning 'fit-failed') gives name 'none' and NaN numbers; no
+    validation gives NaN validation fields. The verdict and warnings are carried as given.
+    """
     msg = FrictionModel()
     msg.header = header
-    msg.name = fit.name
-    msg.a = float(fit.params['A'])
-    msg.alpha = float(fit.params['alpha'])
-    msg.a_ci95 = [float(b) for b in fit.ci95['A']]
-    msg.alpha_ci95 = [float(b) for b in fit.ci95['alpha']]
-    correlation = float(fit.correlation[0, 1])
-    msg.a_alpha_correlation = correlation if math.isfinite(correlation) else math.nan
-    msg.rmse = float(fit.rmse)
-    msg.sample_count = int(fit.n)
+    fit, validation = result.fit, result.validation
+    msg.name = fit.name if fit is not None else 'none'
+    nan = math.nan
+    msg.a = float(fit.params['A']) if fit is not None else nan
+    msg.alpha = float(fit.params['alpha']) if fit is not None else nan
+    msg.a_ci95 = [float(b) for b in fit.ci95['A']] if fit is not None else [nan, nan]
+    msg.alpha_ci95 = [float(b) for b in fit.ci95['alpha']] if fit is not None else [nan, nan]
+    correlation = float(fit.correlation[0, 1]) if fit is not None else nan
+    msg.a_alpha_correlation = correlation if math.isfinite(correlation) else nan
+    msg.rmse = float(fit.rmse) if fit is not None else nan
+    msg.sample_count = int(result.samples_used)
     msg.window_count = int(window_count)
-    msg.slider_amplitude_simulated = float(validation.slider_amplitude_simulated)
-    msg.slider_amplitude_measured = float(validation.slider_amplitude_measured)
-    msg.phase_simulated = float(validation.phase_simulated)
-    msg.phase_measured = float(validation.phase_measured)
+    for name in ('slider_amplitude_simulated', 'slider_amplitude_measured', 'phase_simulated',
+                 'phase_measured'):
+        setattr(msg, name, float(getattr(validation, name)) if validation is not None else nan)
+    msg.memory_verdict = result.memory_verdict
+    msg.warnings = [f'{code}: {message}' for code, message in result.warnings]
     return msg
 
 

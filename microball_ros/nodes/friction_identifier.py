@@ -1,21 +1,19 @@
 """friction_identifier: /estimation/derivatives -> /friction/model, refitted as windows arrive.
 
-Accumulates the (v_rel, a_slider) samples of every window (across sweep frequencies), fits the
-Langevin law by least squares with profile-likelihood intervals (core.friction), and validates
-it as in the paper's Fig. 9 by simulating the slider under the stator motion of the newest
-window. Estimates no working estimator sends are dropped and counted per kind on /diagnostics
-(common.InputGuard): arrays of different lengths or with NaN or infinite values, a stamp that
-does not move forward, a message from a publisher beyond ``expected_publishers``.
+Every window carries the positions it was estimated from; the node analyses the union of the
+positions received so far with the one core pipeline (core.pipeline.analyze_windows) that
+``microball analyze`` runs on a file, with the same policy and options (method, epsilon,
+exposure): the same samples give the same model, intervals, memory verdict and warnings. The
+model is validated as in the paper's Fig. 9, and the verdict and warnings travel with it.
 """
 
 import sys
 
 from microball_msgs.msg import DerivativeEstimate, FrictionModel
-import numpy as np
 from rclpy.node import Node
 from std_msgs.msg import Header
 
-from microball_ros.core import friction
+from microball_ros.core import pipeline
 from microball_ros.io import conversions
 from microball_ros.nodes.common import (
     DATA_QOS,
@@ -33,7 +31,12 @@ PARAMS = {
     'max_windows': Param(0, 'fit the newest N windows only; 0 keeps every window', 0, 1000000),
     'refit_every': Param(1, 'refit after every N new windows', 1, 10000),
     'memoryless_only': Param(False, 'fit only windows the memory test called memoryless'),
-    'validation_step': Param(0.001, 'RK4 step of the Fig. 9 validation, s', 1e-5, 0.01),
+    'method': Param('three-stage', 'derivative method of the analysis: three-stage, forward '
+                                   'or lowpass-forward', read_only=True),
+    'epsilon': Param(-1.0, 'amplitude-filter threshold of the three-stage method; -1 (default) '
+                           'takes the noise-adaptive threshold', -1.0, 0.99, read_only=True),
+    'exposure': Param(0.0, 'camera exposure, s, whose averaging the analysis undoes', 0.0, 1.0,
+                      read_only=True),
     'expected_publishers': Param(1, 'publishers of estimation/derivatives this node accepts '
                                     'messages from (the first ones heard); more are another '
                                     "rig's, dropped; 0 accepts any number", 0, 100,
@@ -56,21 +59,17 @@ def estimate_problem(msg):
 
 
 def check_parameters(values):
-    """Return None: the ranges of the descriptors are the only constraints."""
+    """Return None if the parameter values are consistent, else a one-line reason."""
+    if values['method'] not in pipeline.METHODS:
+        return f"method must be one of {', '.join(pipeline.METHODS)}, got {values['method']!r}"
     return None
 
 
-def unique_samples(arrays):
-    """Return (v_rel, a_slider) with every time stamp once (the first window's estimate).
-
-    Windows overlap when the hop is shorter than the window; counting a sample twice would
-    shrink the intervals by a factor up to sqrt(window / hop) for no new information.
-    """
-    time = np.concatenate([a[0] for a in arrays])
-    _, first = np.unique(np.round(time * 1e9).astype(np.int64), return_index=True)
-    first.sort()
-    return (np.concatenate([a[1] for a in arrays])[first],
-            np.concatenate([a[2] for a in arrays])[first])
+def pipeline_options(values):
+    """Return the core pipeline's Options for the node's parameter values."""
+    return pipeline.Options(method=values['method'],
+                            epsilon=None if values['epsilon'] < 0 else values['epsilon'],
+                            exposure=values['exposure'])
 
 
 class FrictionIdentifier(Node):
@@ -106,15 +105,13 @@ class FrictionIdentifier(Node):
 
     def _fit(self, windows, values):
         arrays = [conversions.estimate_arrays(msg) for msg in windows]
-        v, a = unique_samples(arrays)
-        fit = friction.fit_least_squares(v, a, 'langevin')
-        newest, (time, _, _, stator, slider) = windows[-1], arrays[-1]
-        validation = friction.validate(fit.law, time, stator, slider,
-                                       newest.fundamental_frequency,
-                                       dt=values['validation_step'])
+        result = pipeline.analyze_windows([(t, stator, slider)
+                                           for t, _, _, stator, slider in arrays],
+                                          options=pipeline_options(values),
+                                          source='estimation/derivatives')
+        newest = windows[-1]
         header = Header(stamp=newest.header.stamp, frame_id=newest.header.frame_id)
-        self._publisher.publish(conversions.friction_model(header, fit, validation,
-                                                           len(windows)))
+        self._publisher.publish(conversions.friction_model(header, result, len(windows)))
 
     def _on_job_error(self, job, error):
         self.diagnostics.error(f'fit failed: {error}')
