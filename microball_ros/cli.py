@@ -9,8 +9,8 @@ import argparse
 import json
 import os
 import sys
-import threading
 
+from microball_ros.app.terminal import Progress, pause_on_space
 from microball_ros.core.errors import InputError, MicroballError
 
 EXIT_BAD_INPUT = 2
@@ -46,52 +46,7 @@ def _fraction(text):
     return value
 
 
-class _Progress:
-    """Progress lines on stderr, held back a moment so that none precedes a quick error.
-
-    A line is printed when the next one arrives or after HOLD seconds (a timer); a line still
-    pending when the command ends is dropped: on success the results say it, on failure the
-    error is the only line the user sees.
-    """
-
-    HOLD = 0.5
-
-    def __init__(self):
-        self._pending = None
-        self._timer = None
-        self._lock = threading.Lock()
-
-    def __call__(self, message):
-        """Show a progress line (after the previous one, if it is still pending)."""
-        with self._lock:
-            self._flush_locked()
-            self._pending = message
-            self._timer = threading.Timer(self.HOLD, self.flush)
-            self._timer.daemon = True
-            self._timer.start()
-
-    def _flush_locked(self):
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
-        if self._pending is not None:
-            print(self._pending, file=sys.stderr, flush=True)
-            self._pending = None
-
-    def flush(self):
-        """Print the pending line now."""
-        with self._lock:
-            self._flush_locked()
-
-    def drop(self):
-        """Forget the pending line (the command failed: its error says what happened)."""
-        with self._lock:
-            if self._timer is not None:
-                self._timer.cancel()
-            self._pending = self._timer = None
-
-
-_progress = _Progress()
+_progress = Progress()
 
 # Work that would not fit in memory is refused before it starts (bytes of the arrays kept).
 MAX_SIMULATED_SAMPLES = 10_000_000   # simulate: about 1 GB of columns (92 h at 30 fps)
@@ -305,84 +260,18 @@ def cmd_experiment(args):
     return 0
 
 
-def _spin_until_interrupted(node, done=lambda: False):
-    """Spin node in a fresh context until Ctrl-C (or done()); return True if interrupted."""
-    from rclpy.executors import SingleThreadedExecutor
-
-    executor = SingleThreadedExecutor(context=node.context)
-    executor.add_node(node)
-    try:
-        while not done():
-            executor.spin_once(timeout_sec=0.1)
-    except KeyboardInterrupt:
-        return True
-    finally:
-        executor.shutdown()
-    return False
-
-
 def cmd_record(args):
     """Record topics to a bag until Ctrl-C (or --duration)."""
-    import time
+    from microball_ros.app.record import record
 
-    import rclpy
-    from rclpy.parameter import Parameter
-
-    from microball_ros.nodes.recorder import Recorder
-
-    context = rclpy.Context()
-    rclpy.init(context=context)
-    try:
-        recorder = Recorder(context=context, parameter_overrides=[
-            Parameter('output', value=args.output),
-            Parameter('topics', value=args.topics or [''])])
+    def started():
         _progress(f'recording {", ".join(args.topics) if args.topics else "every topic"} '
                   f'into {args.output}; Ctrl-C stops')
-        end = None if args.duration is None else time.monotonic() + args.duration
-        _spin_until_interrupted(recorder, lambda: end is not None and time.monotonic() > end)
-        counts = recorder.close()
-        for topic in sorted(counts):
-            print(f'{topic}: {counts[topic]} messages, {recorder.lost.get(topic, 0)} lost')
-        recorder.destroy_node()
-    finally:
-        if context.ok():
-            rclpy.shutdown(context=context)
+
+    counts, lost = record(args.output, args.topics, args.duration, started)
+    for topic in sorted(counts):
+        print(f'{topic}: {counts[topic]} messages, {lost.get(topic, 0)} lost')
     return 0
-
-
-def _pause_on_space():
-    """Return (paused, restore) for the space bar when stdin is a terminal, else (None, None).
-
-    paused() is toggled by each space typed; restore() puts the terminal back as it was (it is
-    switched to character mode while playing).
-    """
-    stdin = sys.stdin
-    if not stdin.isatty():
-        return None, None
-    import termios
-    import threading
-    import tty
-
-    state = {'paused': False}
-    fd = stdin.fileno()
-    saved = termios.tcgetattr(fd)
-    tty.setcbreak(fd)
-
-    def read_keys():
-        while True:
-            try:
-                key = stdin.read(1)
-            except (OSError, ValueError):  # the terminal went away or was closed
-                return
-            if not key:
-                return
-            if key == ' ':
-                state['paused'] = not state['paused']
-                _progress('paused (space resumes)' if state['paused'] else 'resumed')
-
-    threading.Thread(target=read_keys, daemon=True).start()
-    return (lambda: state['paused'],
-            lambda: termios.tcsetattr(fd, termios.TCSADRAIN, saved))
 
 
 def cmd_play(args):
@@ -403,7 +292,7 @@ def cmd_play(args):
         player = Player(bag, topics=args.topics, clock=args.clock, context=context)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(player)
-        paused, restore_terminal = _pause_on_space()
+        paused, restore_terminal = pause_on_space(_progress)
         total = sum(bag.topics[t].count for t in player.publishers_by_topic)
         _progress(f'playing {total} messages of {args.bag} at {args.rate:g}x'
                   f'{" lock-step" if args.lockstep else ""}'

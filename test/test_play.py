@@ -16,8 +16,8 @@ from rosbags.rosbag2 import Writer as RosbagsWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosgraph_msgs.msg import Clock
 
-from microball_ros import cli
 from microball_ros.app.play import Player
+from microball_ros.app.terminal import pause_on_space
 from microball_ros.io import conversions
 from microball_ros.io.bags.reader import open_bag
 from microball_ros.io.bags.schema import msg_file
@@ -135,8 +135,7 @@ def test_space_toggles_pause_on_a_terminal(monkeypatch):
     stdin = os.fdopen(terminal, 'r')
     monkeypatch.setattr(sys, 'stdin', stdin)
     changed = threading.Event()
-    monkeypatch.setattr(cli, '_progress', lambda message: changed.set())
-    paused, restore = cli._pause_on_space()
+    paused, restore = pause_on_space(lambda message: changed.set())
     try:
         assert paused() is False
         assert not termios.tcgetattr(terminal)[3] & termios.ICANON  # keys without Enter
