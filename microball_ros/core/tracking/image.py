@@ -32,7 +32,7 @@ def parse_roi(text: str) -> Roi:
         values = ()
     if len(values) != 4:
         raise InputError(f'ROI {text!r} must be four integers X,Y,W,H')
-    return values  # type: ignore[return-value]
+    return (values[0], values[1], values[2], values[3])
 
 
 def check_roi(roi: Any, frame_size: tuple[int, int] | None = None, name: str = 'mark') -> Roi:
@@ -75,16 +75,16 @@ def to_gray(frame: npt.ArrayLike) -> np.ndarray:
 
     Raises InputError (one line) for any other shape.
     """
-    frame = np.asarray(frame)
-    if frame.ndim == 3 and frame.shape[2] == 1:
-        frame = frame[:, :, 0]
-    elif frame.ndim == 3 and frame.shape[2] in (3, 4):
-        code = cv2.COLOR_BGR2GRAY if frame.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        frame = cv2.cvtColor(frame, code)
-    if frame.ndim != 2:
+    array = np.asarray(frame)
+    if array.ndim == 3 and array.shape[2] == 1:
+        array = array[:, :, 0]
+    elif array.ndim == 3 and array.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if array.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        array = cv2.cvtColor(array, code)
+    if array.ndim != 2:
         raise InputError(f'a frame must be a 2-D (gray) or H x W x 3 array, got shape '
-                         f'{frame.shape}')
-    return frame
+                         f'{array.shape}')
+    return array
 
 
 def gray_frames(frames: Iterable[npt.ArrayLike] | np.ndarray) -> tuple[np.ndarray, Iterator]:

@@ -153,7 +153,8 @@ class LearnedMarkTracker:
         """Report a single-frame detection while the template learns its first frames."""
         cfg = self.config
         if found is None:
-            found = detect(region, column_profile(region), self._baseline, cfg, self.polarity)
+            polarity = self.polarity or 'dark'  # _initialise set it before any warm-up frame
+            found = detect(region, column_profile(region), self._baseline, cfg, polarity)
         if not found.found:
             return self._invalid(found.reason, contrast=found.peak)
         extent = (found.hi - found.lo) / 2.0 + cfg.pad_px
@@ -200,10 +201,17 @@ class LearnedMarkTracker:
             return None, keep
         return flat / base - 1.0, keep
 
+    @property
+    def _learned(self) -> MarkTemplate:
+        """The template, which exists once the first frames were seen (after _warmup)."""
+        if self.template is None:
+            raise RuntimeError('the mark template is used before it was created')
+        return self.template
+
     def _window(self, r, column):
         """Return the grid window of r centred near ``column``, its valid mask and start."""
-        size = self.template.size
-        j0 = int(round(column)) - self.template.center
+        size = self._learned.size
+        j0 = int(round(column)) - self._learned.center
         index = np.arange(j0, j0 + size)
         valid = (index >= 0) & (index < r.size)
         window = np.zeros(size)
@@ -216,7 +224,7 @@ class LearnedMarkTracker:
         The score is the correlation with the smeared template over its norm (a matched
         filter per blur); gated around the prediction when there is one.
         """
-        template = self.template
+        template = self._learned
         best = None
         for length in sorted({round(blur), 0, 12, 32, 64}):
             core = int(math.ceil(self._half + length / 2.0)) + 2
@@ -257,7 +265,7 @@ class LearnedMarkTracker:
                 fraction ** 2) / 2.0
         blur = max(blur, 2.0)
         gated = prediction is not None and math.isfinite(prediction.spread)
-        if gated:
+        if prediction is not None and gated:
             reach = self._half + blur / 2 + 6.0 * prediction.spread + cfg.smoothing_px + 6
             r, keep = self._relative(region, prediction.column, reach)
         else:
@@ -276,7 +284,7 @@ class LearnedMarkTracker:
                 return self._invalid('too dark')
         noise = deficit_noise(r, keep)
         window, valid, j0 = self._window(r, column)
-        template = self.template
+        template = self._learned
         fit = template.fit(window, valid, column - j0 - template.center, blur, curve,
                            self._half + 4.0)
         if fit is None:
@@ -327,7 +335,7 @@ class LearnedMarkTracker:
             fraction = self.exposure_fraction
             blur = abs(after - before) / 2.0 * fraction
             curve = (after - 2 * middle + before) * fraction ** 2 / 2.0
-            self.template.add(window, valid, position - j0 - self.template.center, blur,
+            self._learned.add(window, valid, position - j0 - self._learned.center, blur,
                               curve, gain, offset, self._half + blur / 2 + abs(curve) / 6 + 8.0)
-            self._half = self.template.half_width(self.config.threshold) + self.config.pad_px
+            self._half = self._learned.half_width(self.config.threshold) + self.config.pad_px
         del self._pending[:-2]

@@ -51,10 +51,10 @@ class MotionPredictor:
                 targets.append(window[-1])
         if len(rows) < 3 * (p + 1):
             return None
-        design, targets = np.array(rows), np.array(targets)
-        scale = max(float(np.std(targets)), 1.0)
-        coef, *_ = np.linalg.lstsq(design, targets, rcond=None)
-        residual = targets - design @ coef
+        design, goal = np.array(rows), np.array(targets)
+        scale = max(float(np.std(goal)), 1.0)
+        coef, *_ = np.linalg.lstsq(design, goal, rcond=None)
+        residual = goal - design @ coef
         spread = math.sqrt(float(residual @ residual) / max(len(targets) - p - 1, 1))
         return coef, spread, scale
 

@@ -37,7 +37,7 @@ class Fit(NamedTuple):
     gain: float
     offset: float
     rms: float
-    count: int
+    samples: int
 
 
 _U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
