@@ -22,12 +22,16 @@ class Progress:
 
     def __init__(self):
         self._pending = None
+        self._last = None
         self._timer = None
         self._lock = threading.Lock()
 
     def __call__(self, message):
         """Show a progress line (after the previous one, if it is still pending)."""
         with self._lock:
+            if message == self._last:  # nothing new to say (a stalled count)
+                return
+            self._last = message
             self._flush_locked()
             self._pending = message
             self._timer = threading.Timer(self.HOLD, self.flush)

@@ -26,6 +26,7 @@ from microball_ros.core.errors import InputError
 from microball_ros.core.tracking import (
     Tracker,
     TrackerConfig,
+    check_distinct_rois,
     check_roi,
     check_scale,
     draw_tracking,
@@ -89,8 +90,8 @@ def reliable_images(role):
 def check_parameters(values):
     """Return None if the parameter values are consistent, else a one-line reason."""
     try:
-        check_roi(values['slider_roi'], name='slider')
-        check_roi(values['stator_roi'], name='stator')
+        check_distinct_rois({'slider': check_roi(values['slider_roi'], name='slider'),
+                             'stator': check_roi(values['stator_roi'], name='stator')})
         check_scale(values['meters_per_pixel'])
         TrackerConfig(polarity=values['polarity'])
     except ValueError as error:

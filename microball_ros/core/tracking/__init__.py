@@ -50,6 +50,7 @@ from microball_ros.core.tracking.config import METHODS, POLARITIES, TrackerConfi
 from microball_ros.core.tracking.draw import draw_tracking
 from microball_ros.core.tracking.image import (
     Roi,
+    check_distinct_rois,
     check_roi,
     check_scale,
     detect_rois,
@@ -63,6 +64,6 @@ from microball_ros.core.tracking.subpixel import symmetric_center
 from microball_ros.core.tracking.tracker import Tracker, track
 
 __all__ = ['METHODS', 'POLARITIES', 'MarkMeasurement', 'MarkTracker', 'Roi', 'TrackResult',
-           'TrackedFrame', 'Tracker', 'TrackerConfig', 'check_roi', 'check_scale',
-           'detect_rois', 'draw_tracking', 'gray_frames', 'parse_roi', 'symmetric_center',
-           'to_gray', 'track']
+           'TrackedFrame', 'Tracker', 'TrackerConfig', 'check_distinct_rois', 'check_roi',
+           'check_scale', 'detect_rois', 'draw_tracking', 'gray_frames', 'parse_roi',
+           'symmetric_center', 'to_gray', 'track']

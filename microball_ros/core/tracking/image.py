@@ -59,6 +59,24 @@ def check_roi(roi: Any, frame_size: tuple[int, int] | None = None, name: str = '
     return (x, y, w, h)
 
 
+def check_distinct_rois(rois: dict[str, Roi]) -> None:
+    """Refuse two ROIs that frame the same mark (overlapping by more than half the smaller).
+
+    The slider's and the stator's marks sit on different plates; ROIs that largely overlap
+    are a copy-paste mistake, and tracking both would report one mark twice.
+    """
+    items = list(rois.items())
+    for i, (name_a, (xa, ya, wa, ha)) in enumerate(items):
+        for name_b, (xb, yb, wb, hb) in items[i + 1:]:
+            overlap = (max(0, min(xa + wa, xb + wb) - max(xa, xb))
+                       * max(0, min(ya + ha, yb + hb) - max(ya, yb)))
+            smaller = min(wa * ha, wb * hb)
+            if smaller and overlap > 0.5 * smaller:
+                raise InputError(f'the {name_a} and {name_b} ROIs overlap by '
+                                 f'{100 * overlap / smaller:.0f} %: each must frame its own '
+                                 "mark (the slider's and the stator's are on different plates)")
+
+
 def check_scale(meters_per_pixel: Any) -> float:
     """Validate the image scale (m per px): positive and finite; return it as float."""
     try:

@@ -18,7 +18,14 @@ import numpy.typing as npt
 
 from microball_ros.core.errors import InputError
 from microball_ros.core.tracking.config import TrackerConfig
-from microball_ros.core.tracking.image import Roi, check_roi, check_scale, gray_frames, to_gray
+from microball_ros.core.tracking.image import (
+    Roi,
+    check_distinct_rois,
+    check_roi,
+    check_scale,
+    gray_frames,
+    to_gray,
+)
 from microball_ros.core.tracking.mark import MarkTracker
 from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
 
@@ -50,9 +57,10 @@ class Tracker:
             raise InputError(f'exposure must be in [0, 1/fps], got {exposure!r}')
         self.start_time = float(start_time)
         self.config = TrackerConfig() if config is None else config
-        self.marks = {name: MarkTracker(check_roi(roi, frame_size, name), self.config, name,
-                                        self.exposure * self.fps)
-                      for name, roi in rois.items()}
+        checked = {name: check_roi(roi, frame_size, name) for name, roi in rois.items()}
+        check_distinct_rois(checked)
+        self.marks = {name: MarkTracker(roi, self.config, name, self.exposure * self.fps)
+                      for name, roi in checked.items()}
         self.index = 0
 
     def frame_time(self, index: int) -> float:
