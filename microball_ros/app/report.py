@@ -11,7 +11,9 @@ The figures (``FIGURES``): positions (Fig. 6), derivatives (v_rel and a_slider a
 methods (Fig. 4/7, a_slider against v_rel per method, markers), model (Fig. 8, the fitted law
 over the samples and binned means, with a residual panel), compensation (Fig. 5, against the
 ground truth when the record has it: a simulated CSV's true_* columns or a bag's
-/bench/ground_truth) and validation (Fig. 9).
+/bench/ground_truth) and validation (Fig. 9). Each is drawn by ``figure_*(result, path,
+truth=AUTO)``: ``truth`` is the ground_truth() dict or None, looked up when AUTO (write_report
+reads it once for all).
 
 estimates.csv keeps its contract header ``time,relative_velocity,slider_acceleration``
 exactly (DESIGN.md section 5: a comment or renamed header would break CSV readers of the
@@ -51,6 +53,7 @@ DPI = 100
 V_LABEL = 'v_rel = v_slider - v_stator (mm/s)'
 A_LABEL = 'a_slider = F_fric / M_slider (m/s$^2$)'
 NOTE_COLOR = '#b00000'
+AUTO = 'auto'  # a figure's truth argument: look the ground truth up (ground_truth)
 
 
 # --- estimates.csv and summary.txt -------------------------------------------------------------
@@ -245,7 +248,7 @@ def _legend_outside(ax, **options):
 
 # --- the figures -------------------------------------------------------------------------------
 
-def figure_positions(result, path):
+def figure_positions(result, path, truth=AUTO):
     """Fig. 6: measured stator and slider positions, the whole window and a stated zoom.
 
     The whole window is drawn per stator period (range as a band, mean as a line: drift and
@@ -284,11 +287,11 @@ def figure_positions(result, path):
     _save(fig, path, result)
 
 
-def figure_derivatives(result, path):
+def figure_derivatives(result, path, truth=AUTO):
     """v_rel and a_slider against time (chosen method), with the ground truth when known."""
     est, frequency = result.estimate, result.fundamental_frequency
     shown, span = _span(est.time, frequency, 4, skip=1)
-    truth = ground_truth(result)
+    truth = ground_truth(result) if truth is AUTO else truth
     fig, axes = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
     t = est.time[shown]
     for ax, values, name, scale, label in (
@@ -317,7 +320,7 @@ def _relative_estimates(result, method):
                                         window.slider_position, method, **options)
 
 
-def figure_methods(result, path):
+def figure_methods(result, path, truth=AUTO):
     """Fig. 4/7: a_slider against v_rel for each estimation method, one marker per sample."""
     fig, axes = plt.subplots(1, len(COMPARED_METHODS), figsize=(13, 4.4), sharey=True,
                              sharex=True)
@@ -340,7 +343,7 @@ def figure_methods(result, path):
     _save(fig, path, result)
 
 
-def figure_model(result, path):
+def figure_model(result, path, truth=AUTO):
     """Fig. 8: the fitted law over the samples and their binned means; residuals below."""
     est, fit, pipe = result.estimate, result.fit, result.pipeline
     v, a = est.velocity, pipe.fit_acceleration
@@ -418,32 +421,50 @@ def _model_text(result):
     return lines
 
 
-def figure_compensation(result, path):
-    """Fig. 5: three-stage v_rel with and without stage 3, against the ground truth if known."""
+def compensation(result, truth=AUTO):
+    """Return (time, v_rel with stage 3, without, truth or None, relative rms errors).
+
+    The three-stage v_rel (m/s) of the analysed window with and without stage 3 (amplitude
+    compensation), the ground truth at the same stamps (NaN where none matched; None without
+    ground truth) and, with a ground truth, {'with stage 3': e, 'without stage 3': e}: each
+    estimate's rms error over the rms of the truth, over the matched samples.
+    """
     window, frequency = result.window, result.fundamental_frequency
     common = {**three_stage_options(result.pipeline.options), 'fundamental': frequency}
     with_stage3 = estimation.estimate_relative(window.time, window.stator_position,
                                                window.slider_position, **common)
     without = estimation.estimate_relative(window.time, window.stator_position,
                                            window.slider_position, compensate=False, **common)
-    truth = ground_truth(result)
-    shown, span = _span(with_stage3.time, frequency, 3, skip=1)
-    t = with_stage3.time[shown]
-    fig, ax = plt.subplots(figsize=(10, 4.2))
+    truth = ground_truth(result) if truth is AUTO else truth
+    errors = {}
+    reference = None
     if truth is not None:
-        every = truth_at(truth, with_stage3.time, 'relative_velocity', result.sample_period)
-        known = np.isfinite(every)
+        reference = truth_at(truth, with_stage3.time, 'relative_velocity', result.sample_period)
+        known = np.isfinite(reference)
         for label, est in (('without stage 3', without), ('with stage 3', with_stage3)):
-            error = est.velocity - every
-            rel = math.sqrt(np.mean(error[known] ** 2) / np.mean(every[known] ** 2))
-            ax.plot(t, error[shown] * 1e3, 'o-', ms=3, lw=0.7,
-                    label=f'{label}: relative rms error {rel:.2%} over {known.sum()} samples')
+            error = est.velocity[known] - reference[known]
+            errors[label] = math.sqrt(np.mean(error ** 2) / np.mean(reference[known] ** 2))
+    return with_stage3.time, with_stage3.velocity, without.velocity, reference, errors
+
+
+def figure_compensation(result, path, truth=AUTO):
+    """Fig. 5: three-stage v_rel with and without stage 3, against the ground truth if known."""
+    truth = ground_truth(result) if truth is AUTO else truth
+    time, with_stage3, without, reference, errors = compensation(result, truth)
+    shown, span = _span(time, result.fundamental_frequency, 3, skip=1)
+    t = time[shown]
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    if reference is not None:
+        known = int(np.count_nonzero(np.isfinite(reference)))
+        for label, velocity in (('without stage 3', without), ('with stage 3', with_stage3)):
+            ax.plot(t, (velocity - reference)[shown] * 1e3, 'o-', ms=3, lw=0.7,
+                    label=f'{label}: relative rms error {errors[label]:.2%} ({known} samples)')
         ax.axhline(0, color='0.5', lw=0.8)
         ax.set_ylabel('v_rel estimate - ground truth (mm/s)', fontsize=9)
         source = f'ground truth from {truth["source"]}'
     else:
-        ax.plot(t, without.velocity[shown] * 1e3, 'o-', ms=3, lw=0.7, label='without stage 3')
-        ax.plot(t, with_stage3.velocity[shown] * 1e3, 'o-', ms=3, lw=0.7, label='with stage 3')
+        ax.plot(t, without[shown] * 1e3, 'o-', ms=3, lw=0.7, label='without stage 3')
+        ax.plot(t, with_stage3[shown] * 1e3, 'o-', ms=3, lw=0.7, label='with stage 3')
         ax.set_ylabel(V_LABEL, fontsize=9)
         source = 'no ground truth in this record'
     ax.set_xlabel('time (s)')
@@ -454,7 +475,7 @@ def figure_compensation(result, path):
     _save(fig, path, result)
 
 
-def figure_validation(result, path):
+def figure_validation(result, path, truth=AUTO):
     """Fig. 9: measured slider against the slider simulated with the identified model(s)."""
     window, validation = result.window, result.validation
     dynamic = result.pipeline.dynamic_model
@@ -504,8 +525,9 @@ def write_report(result, directory):
     write_estimates_csv(paths[0], result.estimate)
     write_estimates_units(paths[1], result)
     write_summary(paths[2], result)
+    truth = ground_truth(result)
     for name, draw in FIGURES:
         path = os.path.join(directory, name)
-        draw(result, path)
+        draw(result, path, truth)
         paths.append(path)
     return paths
