@@ -208,3 +208,14 @@ def test_a_csv_without_ground_truth_draws_without_it(paper, tmp_path):
     assert reference is None and errors == {}
     report.figure_compensation(bare, str(tmp_path / 'compensation.png'))
     assert (tmp_path / 'compensation.png').read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_a_report_without_a_model_still_writes_every_figure(paper, tmp_path):
+    # A failed Langevin fit (fit-failed) leaves no curve, residuals or validation to draw.
+    failed = replace(paper, pipeline=replace(
+        paper.pipeline, fit=None, validation=None, viscous_limit=None,
+        warnings=(('fit-failed', 'the Langevin law cannot be fitted: no convergence'),)))
+    _check_report(failed, tmp_path / 'report')
+    assert analysis.summary_lines(failed)[2] == 'Langevin model: not fitted (see warnings)'
+    assert report.figure_notes(failed) == [
+        '[fit-failed] the Langevin law cannot be fitted: no convergence']
