@@ -393,8 +393,9 @@ def figure_model(result, path, truth=AUTO):
                     ha='center', va='center')
         title = 'Friction model (Fig. 8): no Langevin model could be fitted (see the notes)'
     if pipe.memory_verdict != 'memoryless':
-        title += (f"\nmemory verdict '{pipe.memory_verdict}': the curve is the best static "
-                  'description only, not the friction')
+        title += f"\nmemory verdict '{pipe.memory_verdict}'"
+        if fit is not None:
+            title += ': the curve is the best static description only, not the friction'
     fig.suptitle(title, fontsize=10)
     top.set_ylabel(A_LABEL, fontsize=9)
     top.grid(alpha=0.3)
