@@ -275,43 +275,71 @@ def analyze_record(record: PositionRecord, method='three-stage', epsilon=None, f
 
 
 def summary_lines(result):
-    """Return the human-readable summary printed by ``microball analyze``, warnings last."""
+    """Return the human-readable summary printed by ``microball analyze``, warnings last.
+
+    Statements match the evidence: the memory line states ``memory_verdict`` with the
+    statistic that decided it and its one-sigma uncertainty; laws within 2 of the best AIC
+    (the difference printed to 0.1) are reported as a tie, with the BIC's preference; a
+    degenerate Langevin fit is reported as its viscous limit.
+    """
     data = result.to_json()
-    model, loop = data['model'], result.loop
+    model, loop, phase = data['model'], result.loop, result.memory
+    verdict = result.pipeline.memory_verdict
 
     def interval(bounds):
         return '[' + ', '.join('inf' if b is None else f'{b:.4g}' for b in bounds) + ']'
 
-    verdicts = {'memoryless': 'memoryless', 'memory': 'HAS MEMORY (hysteresis)',
-                'undetermined': 'UNDETERMINED (the data cannot decide)'}
+    def ranking():
+        fitted = [entry for entry in result.comparison if entry.ok]
+        if not fitted:
+            return []
+        best = fitted[0]
+        tied = [e for e in fitted[1:] if round(e.aic - best.aic, 1) <= 2.0]
+        by_bic = min(fitted, key=lambda entry: entry.bic).name
+        if tied:
+            names = [best.name, *(e.name for e in tied)]
+            differences = ', '.join(f'{e.aic - best.aic:.1f}' for e in tied)
+            plural = 's' if len(tied) > 1 else ''
+            return [f'static laws: {", ".join(names[:-1])} and {names[-1]} tie by AIC '
+                    f'(difference{plural} {differences}; 2 or less is no verdict); BIC prefers '
+                    f'{by_bic}']
+        runner = fitted[1] if len(fitted) > 1 else None
+        after = ('' if runner is None else f' (next {runner.name}, AIC difference '
+                 f'{runner.aic - best.aic:.1f})')
+        bic = 'BIC agrees' if by_bic == best.name else f'BIC prefers {by_bic}'
+        return [f'static laws: best by AIC {best.name}{after}; {bic}']
+
     epsilon = ('noise-adaptive threshold' if result.epsilon is None
                else f'epsilon {result.epsilon:g}')
+    phase_text = (f'fundamental phase a_slider vs v_rel {phase.phase_difference:.4f} +- '
+                  f'{phase.uncertainty:.4f} rad (static friction: pi = 3.1416)')
+    loop_text = (f'loop statistic {loop.statistic:+.4f} +- {loop.uncertainty:.4f} rad (1 sigma; '
+                 f'0 = memoryless), bound on unresolved harmonics {loop.bias_bound:.4f} rad')
+    if result.method == 'three-stage':
+        memory_line = f'memory verdict: {verdict}: {loop_text}; {phase_text}'
+    else:
+        memory_line = (f'memory verdict: {verdict}: by the {result.method} {phase_text}; the '
+                       f'loop test on the positions says {loop.verdict}: {loop_text}')
     lines = [
         f'method {result.method} ({epsilon}), sample period {result.sample_period * 1e3:.2f} '
         f'ms, fundamental {result.fundamental_frequency:.4f} Hz, {data["samples_used"]} of '
         f'{data["samples_total"]} samples used ({result.samples_invalid} invalid)',
-        f'memory: {verdicts[result.pipeline.memory_verdict]}; loop statistic '
-        f'{loop.statistic:+.4f} +- '
-        f'{loop.uncertainty:.4f} rad (bound on unresolved harmonics {loop.bias_bound:.4f}); '
-        f'fundamental phase a_slider vs v_rel {result.memory.phase_difference:.4f} +- '
-        f'{result.memory.uncertainty:.4f} rad (pi = 3.1416)',
+        memory_line,
     ]
     if result.fit is None:
         lines.append('Langevin model: not fitted (see warnings)')
     elif model['degenerate']:
         limit = model['viscous_limit']
-        lines.append(f"Langevin model degenerate: viscous limit c = A alpha / 3 = "
-                     f"{limit['c']:.4g} 1/s {interval(limit['c_ci95'])}; rmse "
-                     f"{model['rmse']:.3g} m/s^2")
+        lines.append(f"Langevin model degenerate: only its viscous limit is determined, c = "
+                     f"A alpha / 3 = {limit['c']:.4g} 1/s {interval(limit['c_ci95'])}; A and "
+                     f"alpha separately are not; rmse {model['rmse']:.3g} m/s^2")
     else:
         lines.append(f"Langevin model: A = {model['A']:.4g} m/s^2 {interval(model['A_ci95'])}, "
                      f"alpha = {model['alpha']:.4g} s/m {interval(model['alpha_ci95'])}, "
                      f"corr {model['A_alpha_correlation']:+.3f}, rmse {model['rmse']:.3g} "
                      f"m/s^2")
         lines.append(f"low-velocity slope A alpha / 3 = {model['low_velocity_slope']:.4g} 1/s")
-    fitted = [entry for entry in result.comparison if entry.ok]
-    if fitted:
-        lines.append(f'best static law by AIC: {fitted[0].name}')
+    lines += ranking()
     validation = result.validation
     if validation is not None:
         lines.append(
