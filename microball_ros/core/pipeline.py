@@ -10,8 +10,9 @@ Pure (arrays in, a PipelineResult out; no files, no rclpy). Steps, one policy fo
    for the samples the first leaves out (the algorithm is symmetric in time);
 4. the memory tests: the paper's fundamental-phase test (reported) and the loop test
    (core.memory.loop_test), whose verdict is the result's;
-5. every static law fitted (core.friction), intervals widened for correlated residuals
-   (core.friction.honest_intervals), the Langevin law validated by simulation (Fig. 9);
+5. every static law fitted (core.friction) to a_slid unfiltered (fit_epsilon) and v_rel through
+   FIT_VELOCITY_FILTER, intervals widened for correlated residuals (batch means), the
+   Langevin law validated by simulation (Fig. 9);
 6. a degenerate (nearly linear) Langevin fit reported as its viscous limit; a dynamic model
    identified when memory is found; warnings wherever the numbers may be biased.
 """
@@ -32,6 +33,13 @@ MIN_PERIODS = 4
 NEAR_NYQUIST_SAMPLES = 7.0  # fewer samples per period: harmonics lost, estimates biased
 SATURATION = 4.0  # alpha max|v_rel| beyond this: a_slid's harmonics alias at ordinary rates
 VALIDATION_TOLERANCE = (0.05, 0.05)  # relative amplitude, phase (rad)
+# The three-stage filter of the v_rel the laws are fitted to: a component is kept above 3 times
+# the noise floor or 2 % of the largest. Measured on bench/independent (Langevin A 1.2, alpha
+# 110, 30 fps, 2 um, seeds 0-4; z = (truth - estimate) / interval half-width for A):
+# the display estimate's filter (4 x floor alone) biases 10 s records (A +17 %, z -0.4 to -1.6
+# in all of 10 seeds); unfiltered v_rel biases 30 s ones the other way (A -3 to -6 %, z +0.1
+# to +1.0, its compensated noise and aliases near Nyquist); this filter: z -0.6 to +0.5.
+FIT_VELOCITY_FILTER = {'epsilon': 0.02, 'noise_floor': 3.0}
 
 
 @dataclass(frozen=True)
@@ -58,7 +66,7 @@ class PipelineResult:
     frequency: float
     used: np.ndarray  # grid indices of the samples estimated and fitted
     estimate: estimation.Estimate  # v_rel and a_slid at the used samples (time = their stamps)
-    fit_acceleration: np.ndarray
+    fit_acceleration: np.ndarray  # a_slid the laws are fitted to (fit_epsilon: unfiltered)
     phase_test: memory_tests.MemoryTest
     loop: memory_tests.LoopTest
     fit: object  # friction.FitResult or None (fit-failed)
@@ -68,6 +76,16 @@ class PipelineResult:
     dynamic_model: object  # dict when memory is found, else None
     runs: tuple = ()  # (start, stop) grid ranges analysed (contiguous, steady)
     warnings: tuple = field(default_factory=tuple)
+    # v_rel the laws are fitted to (FIT_VELOCITY_FILTER; None: the estimate's). Why: the
+    # noise-adaptive filter drops v_rel harmonics that sink below 4 x the noise floor (short
+    # records: fewer samples per bin), a_slid for the fit keeps them, and the Langevin fit
+    # comes out biased along its A-alpha valley (10 s records: A +17 % in every seed).
+    fit_velocity: object = None
+
+    @property
+    def velocity_for_fit(self) -> np.ndarray:
+        """Return the v_rel samples the static and dynamic laws are fitted to."""
+        return self.estimate.velocity if self.fit_velocity is None else self.fit_velocity
 
     @property
     def samples_used(self) -> int:
@@ -124,7 +142,7 @@ def _covered(x, dt, method, options, frequency):
 
 
 def _estimate_runs(grid, runs, frequency, options):
-    """Return (grid index, v_rel, a_slid, a_slid for the fit, v_rel center, a center) arrays."""
+    """Return (grid index, v_rel, a_slid, v_rel and a_slid for the fit, v_rel center, a center)."""
     pieces = []
     kinds = [three_stage_options(options), three_stage_options(options, fit=True)]
     for start, stop in runs:
@@ -135,14 +153,16 @@ def _estimate_runs(grid, runs, frequency, options):
         if options.method == 'three-stage' and options.fit_epsilon != options.epsilon:
             _, _, fit_acceleration = _covered(slider, grid.dt, options.method, kinds[1],
                                               frequency)
+            _, fit_velocity, _ = _covered(slider - stator, grid.dt, options.method,
+                                          {**kinds[1], **FIT_VELOCITY_FILTER}, frequency)
         else:
-            fit_acceleration = acceleration
+            fit_acceleration, fit_velocity = acceleration, velocity
         center = estimation.center_difference(slider - stator, grid.dt)
         center_a = estimation.center_difference(slider, grid.dt)
         common = np.intersect1d(index, center.index)
         mine, theirs = np.isin(index, common), np.isin(center.index, common)
         pieces.append((start + index[mine], velocity[mine], acceleration[mine],
-                       fit_acceleration[mine], center.velocity[theirs],
+                       fit_velocity[mine], fit_acceleration[mine], center.velocity[theirs],
                        center_a.acceleration[theirs]))
     columns = [np.concatenate(parts) for parts in zip(*pieces, strict=True)]
     measured = grid.measured[columns[0]]
@@ -213,8 +233,8 @@ def analyze_positions(time, stator, slider, valid=None, options: Options | None 
         raise InputError(f'{source}: too short: {periods:.1f} stator periods of '
                          f'{frequency:.3g} Hz in usable stretches, need at least '
                          f'{MIN_PERIODS}')
-    used, velocity, acceleration, fit_acceleration, center_v, center_a = _estimate_runs(
-        grid, runs, frequency, options)
+    used, velocity, acceleration, fit_velocity, fit_acceleration, center_v, center_a = \
+        _estimate_runs(grid, runs, frequency, options)
     est = estimation.Estimate(time=grid.time[used], velocity=velocity,
                               acceleration=acceleration, index=used, method=options.method,
                               sample_period=grid.dt, options=three_stage_options(options))
@@ -234,7 +254,7 @@ def analyze_positions(time, stator, slider, valid=None, options: Options | None 
         options=options, grid=grid, sample_period=grid.dt, frequency=float(frequency),
         used=used, estimate=est, fit_acceleration=fit_acceleration, phase_test=phase,
         loop=loop, fit=None, comparison=(), validation=None, viscous_limit=None,
-        dynamic_model=None, runs=tuple(runs)), runs, per_period)
+        dynamic_model=None, runs=tuple(runs), fit_velocity=fit_velocity), runs, per_period)
 
 
 def analyze_windows(windows, options: Options | None = None, source='windows'):
