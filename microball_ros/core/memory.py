@@ -123,8 +123,16 @@ def memory_test(time: npt.ArrayLike, v_rel: npt.ArrayLike, a_slid: npt.ArrayLike
         acceleration = fundamental_phasor(t[selected], a_slid[selected], frequency, harmonics)
         return velocity, acceleration, _wrap(np.angle(acceleration) - np.angle(velocity))
 
-    velocity, acceleration, total = difference(block < count)
-    spread = [_wrap(difference(block == j)[2] - total) for j in range(count)]
+    # Blocks that a gap in the record left (nearly) empty are left out: a phase needs the
+    # block's periods sampled.
+    expected = per_block / frequency / dt
+    full = [j for j in range(count) if np.count_nonzero(block == j) >= 0.5 * expected]
+    if len(full) < 2:
+        raise InputError(f'the memory test needs at least 2 sampled blocks of {per_block} '
+                         f'periods, got {len(full)}')
+    velocity, acceleration, total = difference(np.isin(block, full))
+    spread = [_wrap(difference(block == j)[2] - total) for j in full]
+    count = len(full)
     student = stats.t.ppf(_ONE_SIGMA_QUANTILE, count - 1)
     uncertainty = float(np.std(spread, ddof=1) / np.sqrt(count) * student)
     phase_difference = float(abs(total))
@@ -322,7 +330,7 @@ def loop_test(time: npt.ArrayLike, stator: npt.ArrayLike, slider: npt.ArrayLike,
     if not norm > 0:
         raise InputError('no oscillation of the slider or of the relative position')
     correlation = float(np.clip(sums[0] / norm, -1, 1))
-    sigma = float(np.sqrt(sums[3]) / norm)
+    sigma = float(np.sqrt(max(sums[3], 0.0)) / norm)  # a noise-free record: rounding below 0
     if len(spread) >= 3:
         student = stats.t.ppf(_ONE_SIGMA_QUANTILE, len(spread) - 1)
         sigma = max(sigma, float(np.std(spread, ddof=1) / np.sqrt(len(spread)) * student))

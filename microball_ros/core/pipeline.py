@@ -217,7 +217,10 @@ def analyze_positions(time, stator, slider, valid=None, options: Options | None 
     if options.method not in METHODS:
         raise InputError(f'unknown method {options.method!r}; choose one of '
                          f'{", ".join(METHODS)}')
-    grid = regularise(time, stator, slider, valid, fill=options.fill)
+    try:
+        grid = regularise(time, stator, slider, valid, fill=options.fill)
+    except InputError as error:
+        raise InputError(f'{source}: {error}') from None
     runs = grid.segments(minimum=16)
     if not runs:
         raise InputError(f'{source}: no stretch of 16 consecutive samples with both marks')
