@@ -85,7 +85,9 @@ class PipelineResult:
     @property
     def velocity_for_fit(self) -> np.ndarray:
         """Return the v_rel samples the static and dynamic laws are fitted to."""
-        return self.estimate.velocity if self.fit_velocity is None else self.fit_velocity
+        if self.fit_velocity is None:
+            return self.estimate.velocity
+        return np.asarray(self.fit_velocity)
 
     @property
     def samples_used(self) -> int:

@@ -125,9 +125,9 @@ def regularise(time, stator, slider, valid=None, fill=2) -> Grid:
     # A duplicated stamp: the frame carries its predecessor's stamp, so it belongs one slot on.
     duplicate = np.concatenate(([False], slot[1:] == slot[:-1]))
     shifted = np.zeros(len(slot), dtype=bool)
-    for k in np.flatnonzero(duplicate):
+    for k in np.flatnonzero(duplicate).tolist():
         if slot[k] == slot[k - 1] and (k + 1 == len(slot) or slot[k + 1] > slot[k] + 1):
-            slot[k] += 1
+            slot[k] = slot[k] + 1
             shifted[k] = True
     # A shifted frame's stamp is known to be wrong: it gets its slot's time.
     t = np.where(shifted, t0 + slot * dt, t)

@@ -104,5 +104,6 @@ def compare_laws(v: npt.ArrayLike, a: npt.ArrayLike, *,
     entries = [fit_law(v, a, name, v_smooth=v_smooth,
                        intervals='profile' if name in profiled else 'wald')
                for name in STATIC_LAWS]
-    fitted = sorted((entry for entry in entries if entry.ok), key=lambda entry: entry.aic)
+    fitted = sorted((entry for entry in entries if entry.ok),
+                    key=lambda entry: math.inf if entry.aic is None else entry.aic)
     return fitted + [entry for entry in entries if not entry.ok]

@@ -65,7 +65,7 @@ class StaticLaw:
     @property
     def params(self) -> dict[str, float]:
         """Return the parameters as a dict, field name -> value."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return {f.name: getattr(self, f.name) for f in fields(self)}  # type: ignore[arg-type]
 
     def force(self, v_rel: float | npt.ArrayLike) -> FloatOrArray:
         """Return L(v_rel), m/s^2 (defined by each law)."""
@@ -89,7 +89,7 @@ class StaticLaw:
 
     def acceleration_from_state(self, state: np.ndarray, v_rel: float) -> float:
         """Return the slider acceleration -L(v_rel), m/s^2 (the state is empty)."""
-        return -self.force(v_rel)
+        return -float(self.force(v_rel))
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ class Langevin(StaticLaw):
         """Return (dL/dA, dL/dalpha), each an array over v_rel."""
         v = np.asarray(v_rel, dtype=float)
         x = self.alpha * v
-        return unit_langevin(x), self.A * v * unit_langevin_slope(x)
+        return np.asarray(unit_langevin(x)), self.A * v * unit_langevin_slope(x)
 
 
 @dataclass(frozen=True)
