@@ -13,7 +13,7 @@ script, as a process) published for them, replayed lock-step by microball_ros.te
 
 Each bag's custom_data keeps the node's parameters (``microball.<node>``), which topics are its
 inputs and outputs (``microball.testing``) and this platform's fingerprint: the bags reproduce
-byte for byte on the platform that made them, within relative 1e-9 elsewhere (DESIGN.md
+byte for byte on the platform that made them, within relative 1e-9 elsewhere (docs/design.md
 section 4). Re-run on the machine the tests run on most (CI) to get byte identity there.
 """
 

@@ -7,7 +7,7 @@
 Messages are copied byte for byte with their times and QoS, and the metadata custom_data comes
 along: the recorded node parameters, so `microball reprocess` works on the sample too, and the
 recording platform's fingerprint ('microball.platform'), so reprocess and the tests know where
-the sample must reproduce byte for byte and where only within tolerance (DESIGN.md section 4).
+the sample must reproduce byte for byte and where only within tolerance (docs/design.md section 4).
 Re-record on the machine the tests run on most (CI) to get byte identity there.
 """
 

@@ -1,4 +1,4 @@
-"""Derivative estimation and the memory test against analytic answers (PAPER.md sections 3-5).
+"""Derivative estimation and the memory test against analytic answers (docs/paper.md sections 3-5).
 
 Every signal is built here from closed forms: sinusoids for the finite-difference factors and
 the paper's Section III-B check, and bearing-like records for the memory test: a static
@@ -102,7 +102,7 @@ def bearing_record(fps, frequency, duration, *, tau=0.0, v_amp=0.01, h2=0.05, h3
         true_difference=abs(np.angle(np.exp(1j * (np.angle(acceleration[1]) + np.pi / 2)))))
 
 
-# ---- PAPER.md section 3: single sinusoids, eqs. 7, 9, 10, 11 ----
+# ---- docs/paper.md section 3: single sinusoids, eqs. 7, 9, 10, 11 ----
 
 @pytest.mark.parametrize('frequency', [0.5, 2.95, 6.0, 11.0, 14.0])
 def test_forward_difference_scales_and_delays_as_eqs_7_and_9(frequency):
@@ -134,7 +134,7 @@ def test_center_difference_is_in_phase_with_eqs_10_and_11(frequency):
     assert result.index.tolist() == list(range(1, 199))
 
 
-# ---- PAPER.md section 5: the numerical check of Section III-B (Fig. 4, Fig. 5) ----
+# ---- docs/paper.md section 5: the numerical check of Section III-B (Fig. 4, Fig. 5) ----
 
 W_3B, D_3B, X1, X2 = 6 * np.pi, 0.033, 1e-3, 3e-4
 
@@ -468,7 +468,7 @@ def test_fundamental_of_a_flat_record_is_an_error():
         fundamental_frequency(np.zeros(100), DT)
 
 
-# ---- PAPER.md section 2: the memory test ----
+# ---- docs/paper.md section 2: the memory test ----
 
 CONDITIONS = [(30, 2.95, 3e-6), (25, 2.0, 5e-6), (25, 5.0, 2e-6), (60, 5.0, 5e-6),
               (60, 2.0, 10e-6), (40, 3.3, 5e-6)]

@@ -203,7 +203,7 @@ def _fundamental_phase_difference(t, a, v):
 
 
 def test_memory_shows_as_a_phase_offset_between_acceleration_and_relative_velocity():
-    # PAPER.md section 2: pi for a memoryless law. The lag adds atan(w tau) (up to the small
+    # docs/paper.md section 2: pi for a memoryless law. The lag adds atan(w tau) (up to the small
     # harmonics of v_rel); LuGre's presliding memory shifts it the other way.
     t, _, v_rel, a = _steady_run(Langevin(A, ALPHA))
     assert math.pi - abs(_fundamental_phase_difference(t, a, v_rel)) < 1e-3
@@ -361,7 +361,7 @@ def test_fits_reject_bad_input():
         fit_least_squares([0.1, 0.2], [1.0])
 
 
-# --- validation (PAPER.md section 8, Fig. 9) ---------------------------------------------------
+# --- validation (docs/paper.md section 8, Fig. 9) ------------------------------------------
 
 def test_fit_sinusoid_removes_mean_and_linear_drift():
     t = np.arange(0, 10, 1 / 30)
@@ -376,7 +376,7 @@ def test_validation_reproduces_the_papers_simulated_amplitude_and_phase():
     stator = X_STATOR * np.sin(W * t)
     measured_slider = 1.26e-3 * np.sin(W * t - 0.46) + 3e-6 * t
     result = validate(Langevin(A, ALPHA), t, stator, measured_slider, FREQUENCY)
-    # PAPER.md section 8 says "about 1.11 mm and 0.41 rad"; those are rounded, so allow 0.03.
+    # docs/paper.md section 8 says "about 1.11 mm and 0.41 rad"; those are rounded, so allow 0.03.
     assert result.slider_amplitude_simulated == pytest.approx(1.11e-3, abs=0.03e-3)
     assert result.phase_simulated == pytest.approx(0.41, abs=0.03)
     # Converged reference (RK4 at 0.1 ms with the analytic stator): 1.09769 mm, 0.41559 rad.

@@ -50,7 +50,7 @@ class AnalysisResult:
     warnings = property(lambda self: self.pipeline.warnings)
 
     def to_json(self):
-        """Return the JSON object of the CLI contract (DESIGN.md section 5), plus extras.
+        """Return the JSON object of the CLI contract (docs/design.md section 5), plus extras.
 
         An interval end the data cannot bound (an open profile) is written as null.
         """

@@ -16,7 +16,7 @@ truth=AUTO)``: ``truth`` is the ground_truth() dict or None, looked up when AUTO
 reads it once for all).
 
 estimates.csv keeps its contract header ``time,relative_velocity,slider_acceleration``
-exactly (DESIGN.md section 5: a comment or renamed header would break CSV readers of the
+exactly (docs/design.md section 5: a comment or renamed header would break CSV readers of the
 contract); its units and sign convention go into the sibling ``estimates.units.json`` and
 summary.txt.
 """

@@ -6,7 +6,7 @@ parameters the run recorded (bag metadata, custom_data 'microball.<node>'), the 
 previous one), and an in-process recorder writes the replayed positions and the nodes' fresh
 /estimation/derivatives and /friction/model to the output bag. The nodes' outputs depend only
 on their ordered input, so the new messages equal the recorded ones byte for byte on the
-platform that recorded them (and within relative 1e-9 on another: DESIGN.md section 4).
+platform that recorded them (and within relative 1e-9 on another: docs/design.md section 4).
 
 A bag with only /camera/image_raw goes through a fresh camera_tracker first (parameters as in
 frames.tracker_parameters); each frame is published only after the tracker's position for the

@@ -1,7 +1,7 @@
 """The simulated rig: a crank-slider stator, a slider moved by friction only, a camera.
 
 The stator is driven by a crank of radius r (the stator amplitude) and a connecting rod of
-length l; the slider obeys M a_slid = F_fric (PAPER.md eq. 2) with any law of
+length l; the slider obeys M a_slid = F_fric (docs/paper.md eq. 2) with any law of
 ``microball_ros.core.friction``, integrated by its fixed-step RK4. The camera samples both
 positions at ``frame_rate``; each frame averages the motion over its exposure (motion blur) and
 is stamped at mid-exposure; white noise is added to both measured positions and a slow random

@@ -1,6 +1,6 @@
 """The memory (hysteresis) test: whether friction is a static function of the velocity.
 
-Section II of PAPER.md: compare the phases of the fundamental components of the slider
+Section II of docs/paper.md: compare the phases of the fundamental components of the slider
 acceleration and the relative velocity; a static (memoryless) friction law puts them pi apart,
 a lag or hysteresis moves the difference off pi. Owns MemoryTest, ``memory_test`` (the phase
 test with a batch-means uncertainty) and ``relative_memory_test`` (estimation of a record by

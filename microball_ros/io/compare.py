@@ -1,4 +1,4 @@
-"""Compare reproduced messages with recorded ones: the determinism contract (DESIGN.md 4).
+"""Compare reproduced messages with recorded ones: the determinism contract (docs/design.md 4).
 
 Three verdicts, in this order of strength:
 

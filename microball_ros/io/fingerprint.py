@@ -5,7 +5,7 @@ time and narrowed by ``NPY_DISABLE_CPU_FEATURES``) and OpenBLAS's kernel (chosen
 ``OPENBLAS_CORETYPE``), and on the versions of the stack. ``fingerprint()`` records all of them,
 plus the CPU model, Python and this package's version, as a flat mapping of strings that goes
 into every bag's ``custom_data``; ``numeric_key()`` is the part that must match for two runs to
-agree byte for byte (DESIGN.md section 4, determinism contract (a)).
+agree byte for byte (docs/design.md section 4, determinism contract (a)).
 """
 
 import hashlib

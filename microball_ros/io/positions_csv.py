@@ -1,4 +1,4 @@
-"""Position CSV files: the contract of DESIGN.md section 5, read strictly and written plainly.
+"""Position CSV files: the contract of docs/design.md section 5, read strictly and written plainly.
 
 A position CSV has the header ``time,stator_position,slider_position`` (s, m, m); extra columns
 are kept but not needed. An empty cell means "no measurement" (a lost mark in a tracked video);

@@ -36,7 +36,7 @@ from microball_ros.core.errors import InputError, MicroballError
 
 # Data path (positions, estimates, models; messages of at most a few kB): reliable, and deep
 # enough that a burst of a minute at 30 fps is kept while a subscriber is busy
-# (DESIGN.md section 4): at most a few MB per endpoint.
+# (docs/design.md section 4): at most a few MB per endpoint.
 DATA_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=2000,
                       reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.VOLATILE)

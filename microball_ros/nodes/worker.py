@@ -7,7 +7,7 @@ import threading
 class OrderedWorker:
     """Run submitted jobs one at a time, first in first out, on a daemon thread.
 
-    One thread and one queue keep the outputs in input order (determinism: DESIGN.md
+    One thread and one queue keep the outputs in input order (determinism: docs/design.md
     section 4) while the executor's callbacks return at once. ``on_error(job, error)`` is called
     for a job that raises, and the worker carries on with the next one.
     """

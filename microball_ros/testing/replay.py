@@ -5,7 +5,7 @@ node has acknowledged the previous one: app/play.py's Player), to one node, in t
 (a Node class) or as a process (its console script name), with the parameters the bag recorded
 for it; collects what the node publishes on the output topics as the bytes that came through
 DDS; and compares them with the bag's recorded outputs under the determinism contract
-(DESIGN.md section 4) with ``microball_ros.io.compare``: ``byte-identical``, ``within
+(docs/design.md section 4) with ``microball_ros.io.compare``: ``byte-identical``, ``within
 tolerance`` (relative 1e-9, counts, integers and strings identical) or ``differs`` with the
 first differing message, field, recorded value and new value. ``Replay.assert_reproduces()``
 asks for byte identity where the bag was recorded on this platform (its fingerprint's key is
@@ -131,7 +131,7 @@ class Replay:
         return lines
 
     def assert_reproduces(self):
-        """Fail unless the outputs meet the determinism contract (DESIGN.md section 4).
+        """Fail unless the outputs meet the determinism contract (docs/design.md section 4).
 
         Byte-identical where the bag carries this platform's fingerprint key, within relative
         1e-9 (every count, integer and string identical) anywhere else.

@@ -1,6 +1,6 @@
 """Friction laws of the microball bearing: evaluation, simulation, identification, validation.
 
-Sign convention (PAPER.md section 7): ``v_rel = v_slider - v_stator`` and the slider
+Sign convention (docs/paper.md section 7): ``v_rel = v_slider - v_stator`` and the slider
 acceleration is ``a_slid = -L(v_rel)``, the friction per unit mass opposing the sliding. All
 quantities are SI: m, s, m/s, m/s^2. ``from microball_ros.core import friction`` and then
 ``friction.<name>`` reaches every public name of the package's modules:

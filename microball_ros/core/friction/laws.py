@@ -97,7 +97,7 @@ class Langevin(StaticLaw):
     """The paper's modified Langevin law L(v) = A (coth(alpha v) - 1/(alpha v)) (eq. 13).
 
     A (m/s^2) is the saturation level, alpha (s/m) sets where it saturates; near 0 the law is
-    viscous with slope A alpha / 3 (1/s). Defaults: the paper-like reconstruction of PAPER.md.
+    viscous with slope A alpha / 3 (1/s). Defaults: the paper-like reconstruction of docs/paper.md.
     """
 
     A: float = 1.2

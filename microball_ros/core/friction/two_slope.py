@@ -51,7 +51,7 @@ def _local_slope_at(v, force, v1, window):
 
 @dataclass(frozen=True)
 class TwoSlopeResult:
-    """The Langevin law identified from its slopes at v = 0 and v = v1 (PAPER.md eq. 14)."""
+    """The Langevin law identified from its slopes at v = 0 and v = v1 (docs/paper.md eq. 14)."""
 
     A: float
     alpha: float

@@ -3,7 +3,7 @@
 Plain frozen records, no computation beyond unit conversion: MarkMeasurement (image columns,
 quality, noise, and why a sample is invalid), TrackedFrame (the marks of one frame and its
 mid-exposure stamp) and TrackResult (arrays per mark, and the position-CSV columns of
-DESIGN.md section 5). An invalid sample is NaN with a low quality, never an invented position.
+docs/design.md section 5). An invalid sample is NaN with a low quality, never an invented position.
 """
 
 from dataclasses import dataclass, field
@@ -77,7 +77,7 @@ class TrackResult:
     polarity: dict[str, str] = field(default_factory=dict)
 
     def to_columns(self) -> dict[str, np.ndarray]:
-        """Return the position-CSV columns (DESIGN.md section 5) as an ordered dict.
+        """Return the position-CSV columns (docs/design.md section 5) as an ordered dict.
 
         ``time,stator_position,slider_position,slider_quality,stator_quality,slider_sigma,
         stator_sigma`` (sigma: the position's standard error, m); needs marks named 'slider'
