@@ -89,7 +89,7 @@ def test_best_effort_camera_bad_frames_dropped_and_counted_good_ones_tracked(
                     return {kv.key: kv.value for kv in status.values}
         return {}
 
-    ros_harness.spin_until(lambda: drops().get('dropped') == '3', 10.0,
+    ros_harness.spin_until(lambda: drops().get('dropped') == '3', 30.0,
                            'the three drops on /diagnostics')
     counted = drops()
     assert counted['dropped: image of another size'] == '1'
