@@ -14,9 +14,8 @@ import math
 
 import numpy as np
 
-from microball_ros.core.errors import InputError
 from microball_ros.core.tracking.config import TrackerConfig
-from microball_ros.core.tracking.image import Roi, check_roi
+from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.profile import (
     Baseline,
     column_profile,
@@ -126,10 +125,7 @@ class CentroidMarkTracker:
         """
         cfg = self.config
         x, y, w, h = self.roi
-        if frame.ndim != 2 or x + w > frame.shape[1] or y + h > frame.shape[0]:
-            raise InputError(f'{self.name} ROI {x},{y},{w},{h} extends outside the '
-                             f'{frame.shape[1] if frame.ndim > 1 else 0}x{frame.shape[0]} frame')
-        region = frame[y:y + h, x:x + w]
+        region = roi_region(frame, self.roi, self.name)
         profile = column_profile(region)
         if not np.all(np.isfinite(profile)):
             return self._invalid('non-finite pixels')

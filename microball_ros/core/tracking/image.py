@@ -59,6 +59,15 @@ def check_roi(roi: Any, frame_size: tuple[int, int] | None = None, name: str = '
     return (x, y, w, h)
 
 
+def roi_region(frame: np.ndarray, roi: Roi, name: str = 'mark') -> np.ndarray:
+    """Return the ROI's pixels of a 2-D frame; InputError (one line) if it lies outside."""
+    x, y, w, h = roi
+    if frame.ndim != 2 or x + w > frame.shape[1] or y + h > frame.shape[0]:
+        raise InputError(f'{name} ROI {x},{y},{w},{h} extends outside the '
+                         f'{frame.shape[1] if frame.ndim > 1 else 0}x{frame.shape[0]} frame')
+    return frame[y:y + h, x:x + w]
+
+
 def check_distinct_rois(rois: dict[str, Roi]) -> None:
     """Refuse two ROIs that frame the same mark (overlapping by more than half the smaller).
 
