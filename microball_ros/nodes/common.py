@@ -397,6 +397,9 @@ def run(node_class, args=None):
 
     0 after Ctrl-C or shutdown; 2 with one line on stderr for a bad parameter (one the node's
     validation refuses, or one of the wrong type or out of its declared range).
+    Once a signal has shut the context down, an error from the teardown it interrupted (rclpy's
+    shutdown races, ros2/rclpy#398: an RCLError about an invalid context or wait set) is part
+    of the orderly stop, not a failure; before that, any error is a bug and propagates.
     """
     rclpy.init(args=args)
     node = None
@@ -405,18 +408,25 @@ def run(node_class, args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except RuntimeError as error:
-        # rclpy's shutdown race (ros2/rclpy#398): a SIGINT or SIGTERM that invalidates the
-        # context while the executor builds its wait set surfaces as an RCLError (a
-        # RuntimeError) instead of ExternalShutdownException: an orderly stop all the same.
-        if 'context' not in str(error) or 'not valid' not in str(error):
-            raise
     except (MicroballError, ParameterException) as error:
         print(f'{node_class.__name__}: error: {error}', file=sys.stderr)
         return 2
+    except Exception:  # noqa: B902 - only a stop already under way excuses it
+        if rclpy.ok():
+            raise
     finally:
+        _teardown(node)
+    return 0
+
+
+def _teardown(node):
+    """Destroy the node and shut rclpy down; errors of a stop a signal began are expected."""
+    try:
         if node is not None:
             node.destroy_node()
+    except Exception:  # noqa: B902
+        if rclpy.ok():
+            raise
+    finally:
         if rclpy.ok():
             rclpy.shutdown()
-    return 0
