@@ -5,6 +5,7 @@ import select
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 
 import pytest
@@ -16,8 +17,12 @@ def _run(scenario, duration=20.0, speed=1.5):
     return run_experiment(scenario, duration, speed, progress=lambda line: None)
 
 
-def test_paper_experiment_recovers_the_bench_model_and_calls_it_memoryless():
+def test_paper_experiment_recovers_the_bench_model_and_calls_it_memoryless(tmp_path,
+                                                                            monkeypatch):
+    monkeypatch.setattr(tempfile, 'tempdir', str(tmp_path))
     monitor = _run('paper')
+    # a run that succeeds leaves no node logs behind (the domain's lock file may stay)
+    assert list(tmp_path.glob('microball-experiment-*')) == []
     assert monitor.frames == monitor.tracked == 600
     assert len(monitor.windows) >= 10
     assert all(memoryless for _, _, memoryless in monitor.windows)
@@ -89,6 +94,8 @@ def test_a_crashing_node_is_named_and_no_process_is_left_behind():
             cli.kill()
     assert cli.returncode == 1
     assert 'node three_stage_estimator exited with code -9' in err
+    log = err.split('its log: ')[1].split()[0]
+    assert os.path.isfile(log)  # a failed run keeps the node logs its error names
     _assert_all_gone(children)
 
 

@@ -14,6 +14,7 @@ going backwards; either stops the run with an IsolationError (exit 2, one line).
 import ctypes
 import math
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -328,6 +329,7 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
     executor.add_node(monitor.node)
     processes = NodeProcesses(parameters, log_dir, env=env)
     node = monitor.node
+    completed = False
     try:
         wall_limit = time.monotonic() + 60.0 + 4.0 * duration / speed
         next_graph_check = 0.0
@@ -368,9 +370,12 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
             return finished and now - monitor.last_change > quiet_period
 
         spin_until(done, 'the analysis of every frame')
+        completed = True
         return monitor
     finally:
         processes.stop()
+        if completed:  # a failed run keeps its node logs: its error names them
+            shutil.rmtree(log_dir, ignore_errors=True)
         executor.shutdown()
         monitor.node.destroy_node()
         if context.ok():
