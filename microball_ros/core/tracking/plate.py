@@ -1,0 +1,530 @@
+"""One mark on a plate whose texture moves with it: the learned plate, registered per frame.
+
+Owns PlateMarkTracker (same interface as CentroidMarkTracker) and the texture test
+``plate_is_textured``. Priming decides per ROI whether the plate is textured: pixel noise is
+independent between the even and the odd rows while a texture on the plate is common to both,
+so the correlation of their profiles outside the mark (after a cubic detrend) is about 0 on a
+plain plate and close to 1 on a textured one (``texture_score``). On a plain plate the tracker
+*is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged.
+
+On a textured plate the texture moves with the mark, so near the mark the plate's relative
+deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
+the exposure's motion kernel ``K`` (core.tracking.template: a quadratic path, blur ``L``,
+curvature ``Q``). A frame's deficit is ``d(x) = c + g (D * K)(x - s)`` with ``s`` the position
+averaged over the exposure. The tracker
+
+1. learns from the priming frames the row weights (the mark's depth per row), the static field
+   (illumination and dust fixed in the image: per column the median of the profiles over the
+   frames where the mark is elsewhere) and ``D``, by multi-frame Wiener deconvolution of the
+   frames aligned by their positions, in rounds: the centroid tracker's positions and kernels
+   from neighbouring frames first, then the positions and kernels fitted to the plate learned
+   in the round before. ``D``'s origin is then moved to the mark's centre, the mid-point of
+   its two outer edges (half-depth crossings against the levels on either side of each edge),
+   which a multiplicative texture hardly moves (a centroid is pulled by it);
+2. per frame divides the row-weighted profile by the static field and a line fitted outside
+   the predicted mark (flicker), searches the mark by a matched filter of ``D`` smeared by the
+   predicted motion, gated around the position predicted from the recent track
+   (core.tracking.predict) so texture dips never win, over the whole ROI after a loss;
+3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
+   common to data and model, is signal rather than error;
+4. checks the mark clear of the ROI edges, its contrast ``g`` against recent frames (a covered
+   mark loses contrast) and the fit's residual against the residuals while priming: a failed
+   check gives NaN with a quality below ``min_quality``; positions are never invented.
+"""
+
+from collections import deque
+import math
+
+import numpy as np
+
+from microball_ros.core.tracking.centroid import CentroidMarkTracker
+from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.image import Roi, check_roi, roi_region
+from microball_ros.core.tracking.predict import MotionPredictor
+from microball_ros.core.tracking.profile import Baseline, default_saturation, row_weights
+from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.template import kernel_spectrum, tukey
+
+TEXTURE_SCORE = 0.5
+ROUNDS = 3
+UPSAMPLE = 8
+SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
+
+
+def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
+    """Return how much of a plate's profile is texture: about 0 (plain) to 1 (all texture).
+
+    ``regions``: ROI images (rows x columns); ``marks``: per region the ROI columns (first,
+    last) of the mark, left out (NaN: none known). The correlation of the even-row and the
+    odd-row profiles after a cubic detrend, median over the regions; 0 when none has at least
+    24 plate columns and 4 rows.
+    """
+    values = []
+    for region, (first, last) in zip(regions, marks, strict=True):
+        w = region.shape[1]
+        if region.ndim != 2 or region.shape[0] < 4:
+            continue
+        keep = np.ones(w, dtype=bool)
+        if math.isfinite(first) and math.isfinite(last):
+            keep[max(int(first), 0):max(int(last) + 1, 0)] = False
+        if np.count_nonzero(keep) < 24:
+            continue
+        u = np.linspace(-1.0, 1.0, w)[keep]
+        residual = []
+        for rows in (region[0::2], region[1::2]):
+            profile = rows.mean(axis=0, dtype=np.float64)[keep]
+            residual.append(profile - np.polyval(np.polyfit(u, profile, 3), u))
+        a, b = residual
+        den = math.sqrt(float(a @ a) * float(b @ b))
+        if den > 0:
+            values.append(float(a @ b) / den)
+    return float(np.median(values)) if values else 0.0
+
+
+def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
+                      threshold: float = TEXTURE_SCORE) -> bool:
+    """Return True if the plate around the mark carries a texture (``texture_score``).
+
+    Plain plates score within about 0.05 of 0, the textured and speckled ones 0.95 or more.
+    """
+    return texture_score(regions, marks) >= threshold
+
+
+class PlateModel:
+    """The plate's deficit ``D`` near the mark on a periodic grid, origin at ``size // 2``."""
+
+    def __init__(self, size: int, support: float, regularisation: float = 1e-3):
+        """Create an empty model trusted within ``support`` px of its origin."""
+        self.size = int(size)
+        self.center = self.size // 2
+        self.k = 2 * np.pi * np.fft.rfftfreq(self.size)
+        self.regularisation = float(regularisation)
+        self._num = np.zeros(self.k.size, complex)
+        self._den = np.zeros(self.k.size)
+        self._shape = tukey(self.size, self.center, float(support), 8.0)
+        self.grid = np.arange(self.size) - self.center
+        self.spectrum = np.zeros(self.k.size, complex)
+        self.values = np.zeros(self.size)
+        self.frames = 0
+
+    def add(self, window, valid, delta, blur, curve, half) -> None:
+        """Accumulate one frame's grid-aligned deficit (``delta`` = s - origin column)."""
+        taper = tukey(self.size, self.center + delta, half, 8.0) * valid
+        h = kernel_spectrum(self.k, blur, curve) * np.exp(-1j * self.k * delta)
+        self._num += np.conj(h) * np.fft.rfft(window * taper)
+        self._den += np.abs(h) ** 2
+        self.frames += 1
+
+    def solve(self) -> None:
+        """Deconvolve what was accumulated into ``values`` and ``spectrum``."""
+        floor = self.regularisation * float(self._den.max())
+        self.values = np.fft.irfft(self._num / (self._den + floor), self.size) * self._shape
+        self.spectrum = np.fft.rfft(self.values)
+
+    def shift_origin(self, shift: float) -> None:
+        """Move the origin by ``shift`` px: the new ``D(u)`` is the old ``D(u + shift)``."""
+        self.spectrum = self.spectrum * np.exp(1j * self.k * shift)
+        self.values = np.fft.irfft(self.spectrum, self.size)
+
+    def model(self, delta, blur, curve, slope=False):
+        """Return D smeared by (blur, curve) with its origin at ``center + delta`` (grid)."""
+        spectrum = self.spectrum * kernel_spectrum(self.k, blur, curve) * np.exp(
+            -1j * self.k * delta)
+        if not slope:
+            return np.fft.irfft(spectrum, self.size)
+        return (np.fft.irfft(spectrum, self.size),
+                np.fft.irfft(-1j * self.k * spectrum, self.size))
+
+    def mark_center(self, reach: float) -> float:
+        """Return the mark's centre (px from the origin): the mid-point of its outer edges.
+
+        On the band-limited interpolation of D: the outermost crossings, within ``reach`` of
+        the origin, of the level half-way between the values 2-5 px outside and inside each
+        edge; NaN when there is no mark.
+        """
+        fine = np.fft.irfft(self.spectrum, self.size * UPSAMPLE) * UPSAMPLE
+        u = (np.arange(fine.size) - self.center * UPSAMPLE) / UPSAMPLE
+        near = np.abs(u) <= reach
+        peak = float(fine[near].max())
+        if not peak > 0:
+            return math.nan
+        level_left = level_right = 0.5 * peak
+        left = right = math.nan
+        for _ in range(3):
+            above_left = np.flatnonzero(near & (fine > level_left))
+            above_right = np.flatnonzero(near & (fine > level_right))
+            if above_left.size == 0 or above_right.size == 0:
+                return math.nan
+            left = self._crossing(fine, u, int(above_left[0]), level_left, -1)
+            right = self._crossing(fine, u, int(above_right[-1]), level_right, 1)
+            level_left = self._level(fine, u, left)
+            level_right = self._level(fine, u, right)
+        return 0.5 * (left + right)
+
+    @staticmethod
+    def _crossing(fine, u, index, level, side):
+        """Return u where ``fine`` crosses ``level`` between index and its outer neighbour."""
+        a, b = fine[index + side], fine[index]
+        t = (level - a) / (b - a) if b != a else 0.5
+        return float(u[index + side] + t * (u[index] - u[index + side]))
+
+    @staticmethod
+    def _level(fine, u, edge):
+        """Return the mean of the median levels 2-5 px on either side of an edge."""
+        outer = fine[(np.abs(u - edge) >= 2.0) & (np.abs(u - edge) <= 5.0) & (u < edge)]
+        inner = fine[(np.abs(u - edge) >= 2.0) & (np.abs(u - edge) <= 5.0) & (u > edge)]
+        return 0.5 * (float(np.median(outer)) + float(np.median(inner)))
+
+    def fit(self, window, valid, delta, blur, curve, reach, iterations=8):
+        """Fit (delta, blur, curve) with offset and gain linear; None if it fails.
+
+        Returns (delta, blur, curve, gain, offset, rms, sigma of delta), from the grid
+        columns within ``reach`` + half the blur of the start.
+        """
+        span = reach + 0.5 * abs(blur) + 0.25 * abs(curve)
+        used = valid & (np.abs(self.grid - delta) <= span)
+        if np.count_nonzero(used) < 12:
+            return None
+        y = window[used]
+        state = np.array([delta, blur, curve], dtype=float)
+        step_l = 0.5
+        result = None
+        for _ in range(iterations):
+            model, slope = self.model(*state, slope=True)
+            m, s = model[used], slope[used]
+            m_l = self.model(state[0], state[1] + step_l, state[2])[used]
+            m_q = self.model(state[0], state[1], state[2] + step_l)[used]
+            ones = np.ones(m.size)
+            basis = np.column_stack([ones, m])
+            (offset, gain), *_ = np.linalg.lstsq(basis, y, rcond=None)
+            residual = y - offset - gain * m
+            cost = float(residual @ residual)
+            jacobian = np.column_stack([ones, m, gain * s, gain * (m_l - m) / step_l,
+                                        gain * (m_q - m) / step_l])
+            normal = jacobian.T @ jacobian
+            result = (state.copy(), float(gain), float(offset), cost, normal, m.size)
+            try:
+                step = np.linalg.solve(normal + 1e-9 * np.diag(np.diag(normal) + 1e-12),
+                                       jacobian.T @ residual)
+            except np.linalg.LinAlgError:
+                return None
+            step[2:] = np.clip(step[2:], -4.0, 4.0)
+            state = state + step[2:]
+            state[1] = abs(state[1])
+            if abs(step[2]) < 1e-4 and abs(step[3]) < 0.01 and abs(step[4]) < 0.02:
+                break
+        if result is None or not np.all(np.isfinite(state)):
+            return None
+        _, gain, offset, cost, normal, count = result
+        variance = cost / max(count - 5, 1)
+        try:
+            covariance = np.linalg.inv(normal)
+        except np.linalg.LinAlgError:
+            return None
+        sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
+        return (float(state[0]), float(state[1]), float(state[2]), gain, offset,
+                math.sqrt(variance), sigma)
+
+
+class PlateMarkTracker:
+    """Track one mark, with the plate's texture learned when it has one (see the module).
+
+    Same interface as CentroidMarkTracker; until ``prime`` has found a textured plate (and
+    on plain plates) it measures exactly like it.
+    """
+
+    def __init__(self, roi: Roi, config: TrackerConfig | None = None, name: str = 'mark',
+                 exposure_fraction: float = 0.5):
+        """Create a tracker for the mark in ``roi`` (x, y, w, h, px)."""
+        self.roi = check_roi(roi, name=name)
+        self.config = TrackerConfig() if config is None else config
+        self.name = name
+        self.exposure_fraction = float(exposure_fraction)
+        self._fallback = CentroidMarkTracker(self.roi, self.config, name, exposure_fraction)
+        self._line = Baseline(self.roi[2], 0)
+        self.plate: PlateModel | None = None
+        self.texture = 0.0
+        self.weights: np.ndarray | None = None
+        self.static: np.ndarray | None = None
+        self._half = 8.0
+        self._rms = 1.0
+        self._predictor = MotionPredictor()
+        self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
+
+    @property
+    def polarity(self) -> str | None:
+        """Return the mark's polarity ('dark' or 'bright'), None until it is known."""
+        return self._fallback.polarity
+
+    @polarity.setter
+    def polarity(self, value: str | None) -> None:
+        self._fallback.polarity = value
+
+    @property
+    def textured(self) -> bool:
+        """Return True once priming found a textured plate and learned it."""
+        return self.plate is not None
+
+    @property
+    def learned(self) -> dict:
+        """Return what was learned: polarity, and for a textured plate the plate near the mark."""
+        if self.plate is None:
+            return self._fallback.learned
+        return {'polarity': self.polarity, 'half_width': self._half,
+                'template': self.plate.values.copy(), 'center': self.plate.center,
+                'texture': self.texture}
+
+    def reset(self) -> None:
+        """Forget the track (what was learned is kept)."""
+        self._predictor.reset()
+        self._gains.clear()
+        polarity = self._fallback.polarity
+        self._fallback.reset()
+        self._fallback.polarity = polarity
+
+    # -- learning --------------------------------------------------------------------------
+    def prime(self, frames) -> None:
+        """Learn the polarity, whether the plate is textured, and if so the plate; restart."""
+        frames = list(frames)
+        self._fallback.prime(frames)
+        if self.polarity is None or len(frames) < 12:
+            return
+        regions = [roi_region(frame, self.roi, self.name) for frame in frames]
+        found = [self._fallback.measure(frame) for frame in frames]
+        self.reset()
+        x = self.roi[0]
+        marks = [(m.position_px - x - m.extent_px / 2.0 - 16.0,
+                  m.position_px - x + m.extent_px / 2.0 + 16.0) if m.valid
+                 else (math.nan, math.nan) for m in found]
+        usable = [i for i, m in enumerate(found) if m.valid]
+        if len(usable) < 8:
+            return
+        sample = usable[:12]
+        self.texture = texture_score([regions[i] for i in sample], [marks[i] for i in sample])
+        if self.texture < TEXTURE_SCORE:
+            return
+        self._learn(regions, found)
+        self.reset()
+
+    def _learn(self, regions, found) -> None:
+        """Learn row weights, static field and plate; leave ``plate`` None on failure."""
+        cfg = self.config
+        x, w = self.roi[0], self.roi[2]
+        positions = np.array([m.position_px - x if m.valid else math.nan for m in found])
+        extents = np.array([m.extent_px if m.valid else math.nan for m in found])
+        weights = [row_weights(r, int(p - e / 2), int(p + e / 2), cfg.pad_px, self.polarity)
+                   for r, p, e in zip(regions, positions, extents, strict=True)
+                   if math.isfinite(p)]
+        weights = [v for v in weights if v is not None]
+        if not weights:
+            return
+        self.weights = np.median(weights, axis=0)
+        self.weights /= max(float(self.weights.sum()), 1e-12)
+        profiles = np.array([self.weights @ r.astype(np.float64) for r in regions])
+        columns = np.arange(w)
+        outside = np.abs(columns[None, :] - positions[:, None]) > (extents[:, None] / 2 + 8.0)
+        outside &= np.isfinite(positions)[:, None]
+        masked = np.where(outside, profiles, np.nan)
+        static = np.nanmedian(masked, axis=0)
+        for _ in range(2):
+            gains = np.nanmedian(masked / static, axis=1)
+            static = np.nanmedian(masked / gains[:, None], axis=0)
+        if not np.all(np.isfinite(static)) or static.min() < cfg.min_baseline:
+            return
+        self.static = static
+        self._half = 0.5 * float(np.nanpercentile(extents, 10))
+        longest = float(np.nanmax(extents)) - 2.0 * self._half
+        support = self._half + cfg.pad_px + min(longest, cfg.max_blur_px) + 24.0
+        size = 64
+        while size < 2 * support + 32:
+            size *= 2
+        deficits = [self._deficit(p, c, e) for p, c, e in zip(profiles, positions, extents,
+                                                               strict=True)]
+        f = self.exposure_fraction
+        kernels = []
+        for n in range(len(positions)):
+            if 0 < n < len(positions) - 1 and np.all(np.isfinite(positions[n - 1:n + 2])):
+                before, middle, after = positions[n - 1:n + 2]
+                kernels.append((abs(after - before) / 2 * f, (after - 2 * middle + before)
+                                * f * f / 2))
+            else:
+                kernels.append(None)
+        plate = None
+        rms = []
+        for round_ in range(ROUNDS):
+            candidate = PlateModel(size, support)
+            for n, d in enumerate(deficits):
+                if d is None or kernels[n] is None or not math.isfinite(positions[n]):
+                    continue
+                window, valid, j0 = self._window(d, positions[n], size)
+                blur, curve = kernels[n]
+                candidate.add(window, valid, positions[n] - j0 - candidate.center, blur, curve,
+                              support - blur / 2 - abs(curve) / 4 - 8.0)
+            if candidate.frames < 4:
+                return
+            candidate.solve()
+            center = candidate.mark_center(self._half + cfg.pad_px)
+            if not math.isfinite(center):
+                return
+            candidate.shift_origin(center)
+            positions = positions + center
+            plate = candidate
+            if round_ == ROUNDS - 1:
+                break
+            rms = []
+            for n, d in enumerate(deficits):
+                if d is None or not math.isfinite(positions[n]):
+                    continue
+                blur, curve = kernels[n] if kernels[n] is not None else (
+                    max(extents[n] - 2 * self._half, 0.0), 0.0)
+                window, valid, j0 = self._window(d, positions[n], size)
+                fit = plate.fit(window, valid, positions[n] - j0 - plate.center,
+                                blur, curve, self._half + cfg.pad_px + 8.0)
+                if fit is None or abs(fit[0] + j0 + plate.center - positions[n]) > 8.0:
+                    kernels[n] = None
+                    continue
+                positions[n] = fit[0] + j0 + plate.center
+                kernels[n] = (fit[1], fit[2])
+                rms.append(fit[5])
+        self.plate = plate
+        self._rms = float(np.median(rms)) if rms else 1.0
+
+    def _deficit(self, profile, center, extent):
+        """Return the deficit against static field x a line fitted away from the mark."""
+        ratio = profile / self.static
+        keep = np.ones(ratio.size, dtype=bool)
+        if math.isfinite(center):
+            reach = extent / 2.0 + 8.0
+            keep[max(int(center - reach), 0):max(int(center + reach) + 1, 0)] = False
+        if np.count_nonzero(keep) < 24:
+            keep[:] = True
+        base = self._line.fit(ratio, keep)
+        if base.min() <= 0:
+            return None
+        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - ratio / base)
+
+    @staticmethod
+    def _window(d, column, size):
+        """Return the grid window of d centred near ``column``, its valid mask and start."""
+        j0 = int(round(column)) - size // 2
+        index = np.arange(j0, j0 + size)
+        valid = (index >= 0) & (index < d.size)
+        window = np.zeros(size)
+        window[valid] = d[index[valid]]
+        return window, valid, j0
+
+    # -- a frame ---------------------------------------------------------------------------
+    def measure(self, frame: np.ndarray) -> MarkMeasurement:
+        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement."""
+        if self.plate is None:
+            return self._fallback.measure(frame)
+        cfg = self.config
+        w = self.roi[2]
+        region = roi_region(frame, self.roi, self.name)
+        profile = self.weights @ region.astype(np.float64)
+        if not np.all(np.isfinite(profile)):
+            return self._invalid('non-finite pixels')
+        saturation = (cfg.saturation_level if cfg.saturation_level is not None
+                      else default_saturation(region.dtype))
+        if saturation is not None and profile.max() >= saturation:
+            return self._invalid('saturated')
+        prediction = self._predictor.predict()
+        f = self.exposure_fraction
+        kernel = None
+        if prediction is not None and math.isfinite(prediction.before):
+            kernel = (abs(prediction.following - prediction.previous) / 2.0 * f,
+                      (prediction.following - 2 * prediction.column + prediction.previous)
+                      * f * f / 2.0)
+        gated = prediction is not None and math.isfinite(prediction.spread)
+        reach = self._half + cfg.pad_px
+        if gated:
+            blur = kernel[0] if kernel is not None else 0.0
+            d = self._deficit(profile, prediction.column, 2 * reach + blur + 8.0)
+        else:
+            d = self._deficit(profile, math.nan, 0.0)
+        if d is None:
+            return self._invalid('too dark')
+        found = self._search(d, prediction if gated else None, kernel)
+        if found is None:
+            return self._invalid('mark at the ROI edge')
+        start, blur, curve = found
+        if not gated:
+            d = self._deficit(profile, start, 2 * reach + blur + 8.0)
+            if d is None:
+                return self._invalid('too dark')
+        size = self.plate.size
+        window, valid, j0 = self._window(d, start, size)
+        fit = self.plate.fit(window, valid, start - j0 - self.plate.center, blur, curve,
+                             reach + 8.0)
+        if fit is None:
+            return self._invalid('no match')
+        delta, blur, curve, gain, _, rms, sigma = fit
+        position = delta + j0 + self.plate.center
+        extent = reach + 0.5 * blur + 0.25 * abs(curve)
+        peak = gain * float(self.plate.values.max())
+        if abs(position - start) > 4.0 or not math.isfinite(position):
+            return self._invalid('no match', contrast=peak)
+        if position - extent < 1 or position + extent > w - 2:
+            return self._invalid('mark at the ROI edge', contrast=peak)
+        reference = float(np.median(self._gains)) if len(self._gains) >= 3 else 1.0
+        self._gains.append(gain)
+        q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / cfg.area_tolerance) ** 2)
+        excess = max(rms / self._rms - cfg.match_tolerance, 0.0)
+        q_match = math.exp(-0.5 * (excess / 0.5) ** 2)
+        snr = peak * math.sqrt(cfg.smoothing_px) / max(rms, 1e-12)
+        q_snr = 1.0 - math.exp(-(snr / cfg.snr_scale) ** 2)
+        quality = q_snr * q_gain * q_match
+        if quality < cfg.min_quality or snr < cfg.min_snr:
+            reason = 'mark area changed' if min(q_gain, q_match) < q_snr else 'low contrast'
+            return self._invalid(reason, quality, contrast=peak)
+        self._predictor.add(position)
+        return MarkMeasurement(position + self.roi[0], quality, sigma_px=sigma, contrast=peak,
+                               extent_px=2.0 * extent)
+
+    def _search(self, d, prediction, kernel):
+        """Return (column, blur, curve): the best match of the smeared plate, or None.
+
+        Gated around the prediction (one kernel, the predicted one) when there is one, else
+        over the whole ROI with a bank of blurs. Score: correlation over the model's norm.
+        """
+        plate = self.plate
+        c = plate.center
+        reach = self._half + self.config.pad_px
+        if prediction is not None:
+            gate = 6.0 * prediction.spread + 3.0
+            lo = int(math.floor(prediction.column - gate))
+            hi = int(math.ceil(prediction.column + gate)) + 1
+            kernels = [kernel if kernel is not None else (0.0, 0.0)]
+        else:
+            lo, hi = 0, d.size
+            kernels = [(b, 0.0) for b in SEARCH_BLURS]
+            if kernel is not None:
+                kernels.append(kernel)
+        lo, hi = max(lo, 0), min(hi, d.size)
+        if hi <= lo:
+            return None
+        best = None
+        for blur, curve in kernels:
+            core = min(int(math.ceil(reach + 0.5 * blur + 0.25 * abs(curve))) + 2, c - 1)
+            template = plate.model(0.0, blur, curve)[c - core:c + core + 1]
+            norm = math.sqrt(float(template @ template))
+            if norm <= 0:
+                continue
+            padded = np.zeros(hi - lo + 2 * core)
+            a, b = lo - core, hi + core
+            padded[max(a, 0) - a:min(b, d.size) - a] = d[max(a, 0):min(b, d.size)]
+            score = np.correlate(padded, template, mode='valid') / norm
+            k = int(np.argmax(score))
+            if best is None or score[k] > best[0]:
+                offset = 0.0
+                if 0 < k < score.size - 1:
+                    left, mid, right = score[k - 1], score[k], score[k + 1]
+                    den = left - 2 * mid + right
+                    if den < 0:
+                        offset = float(np.clip(0.5 * (left - right) / den, -0.5, 0.5))
+                best = (float(score[k]), lo + k + offset, blur, curve)
+        return None if best is None else best[1:]
+
+    def _invalid(self, reason, quality=0.0, contrast=math.nan):
+        self._predictor.add(math.nan)
+        return MarkMeasurement(math.nan, quality, contrast=contrast, reason=reason)
