@@ -41,8 +41,10 @@ from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.predict import MotionPredictor
-from microball_ros.core.tracking.profile import Baseline, default_saturation, row_weights
+from microball_ros.core.tracking.profile import default_saturation, row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.search import locate
+from microball_ros.core.tracking.subpixel import deficit_centroid
 from microball_ros.core.tracking.template import kernel_spectrum, tukey
 
 TEXTURE_SCORE = 0.5
@@ -93,10 +95,11 @@ def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]
 class PlateModel:
     """The plate's deficit ``D`` near the mark on a periodic grid, origin at ``size // 2``."""
 
-    def __init__(self, size: int, support: float, regularisation: float = 1e-3):
+    def __init__(self, size: int, support: float, regularisation: float = 1e-3,
+                 center: int | None = None):
         """Create an empty model trusted within ``support`` px of its origin."""
         self.size = int(size)
-        self.center = self.size // 2
+        self.center = self.size // 2 if center is None else int(center)
         self.k = 2 * np.pi * np.fft.rfftfreq(self.size)
         self.regularisation = float(regularisation)
         self._num = np.zeros(self.k.size, complex)
@@ -226,6 +229,151 @@ class PlateModel:
                 math.sqrt(variance), sigma)
 
 
+def fft_size(minimum: int) -> int:
+    """Return the smallest size >= ``minimum`` with no prime factor above 5 (a fast FFT)."""
+    size = max(int(minimum), 1)
+    while True:
+        rest = size
+        for prime in (2, 3, 5):
+            while rest % prime == 0:
+                rest //= prime
+        if rest == 1:
+            return size
+        size += 1
+
+
+def grid_window(d, column, size, center):
+    """Return d on a grid with its origin column ``center`` near ``column``; mask; start."""
+    j0 = int(round(column)) - center
+    index = np.arange(j0, j0 + size)
+    valid = (index >= 0) & (index < d.size)
+    window = np.zeros(size)
+    window[valid] = d[index[valid]]
+    return window, valid, j0
+
+
+class PlateSolver:
+    """The plate seen through one ROI, learned from frames by alternating least squares.
+
+    Model of frame n's profile: ``gain_n * static(x) * (1 - sign * (D * K_n)(x - s_n))``,
+    ``D`` the whole plate's relative deficit on one grid (every column any frame saw), ``K_n``
+    the exposure's motion kernel. Rounds of: ``D`` given the rest (preconditioned conjugate
+    gradients on the normal equations, circular convolutions by FFT, batched over frames);
+    ``static`` and the gains given ``D`` (closed form); each frame's position and kernel
+    given both (``PlateModel.fit``).
+    """
+
+    def __init__(self, profiles: np.ndarray, static: np.ndarray, sign: float,
+                 regularisation: float = 0.05, iterations: int = 60):
+        """Keep the frames' profiles (frames x columns) and a first static field."""
+        self.profiles = profiles
+        self.static = static.copy()
+        self.sign = float(sign)
+        self.gains = np.ones(len(profiles))
+        self.regularisation = float(regularisation)
+        self.iterations = int(iterations)
+        self.plate: PlateModel | None = None
+        self.kernels = np.full((len(profiles), 2), np.nan)
+        self.positions = np.full(len(profiles), np.nan)
+
+    def learn(self, positions, kernels, reach, rounds) -> list[float]:
+        """Learn from first positions and kernels (NaN: unknown); return the fits' residuals."""
+        count, w = self.profiles.shape
+        positions = np.array(positions, dtype=float)
+        kernels = np.array(kernels, dtype=float)
+        ok = np.isfinite(positions) & np.all(np.isfinite(kernels), axis=1)
+        if np.count_nonzero(ok) < 8:
+            return []
+        margin = float(np.max(np.abs(kernels[ok, 0]))) + abs(float(
+            np.max(np.abs(kernels[ok, 1])))) + 48.0
+        center = int(math.ceil(float(positions[ok].max()) + margin))
+        size = fft_size(int(math.ceil(center + w - float(positions[ok].min()) + margin)))
+        plate = PlateModel(size, float(size), center=center)
+        values = np.zeros(size)
+        rms: list[float] = []
+        for round_ in range(rounds):
+            use = np.flatnonzero(ok)
+            if use.size < 8:
+                return []
+            j0 = np.rint(positions[use]).astype(int) - center
+            delta = positions[use] - j0 - center
+            spectra = np.array([kernel_spectrum(plate.k, blur, curve)
+                                for blur, curve in kernels[use]])
+            spectra *= np.exp(-1j * np.outer(delta, plate.k))
+            rows = np.arange(use.size)[:, None]
+            cols = np.arange(w)[None, :] - j0[:, None]
+            mask = np.zeros((use.size, size))
+            mask[rows, cols] = 1.0
+            data = np.zeros((use.size, size))
+            ratio = self.profiles[use] / (self.gains[use][:, None] * self.static[None, :])
+            data[rows, cols] = self.sign * (1.0 - ratio)
+            values = self._solve(values, spectra, mask, data, w / size)
+            plate.values = values
+            plate.spectrum = np.fft.rfft(values)
+            model = 1.0 - self.sign * np.fft.irfft(plate.spectrum * spectra, size,
+                                                   axis=1)[rows, cols]
+            measured, gains = self.profiles[use], self.gains[use]
+            for _ in range(2):
+                static = ((gains[:, None] * measured * model).sum(axis=0)
+                          / (gains[:, None] ** 2 * model ** 2).sum(axis=0))
+                gains = ((measured * static * model).sum(axis=1)
+                         / ((static * model) ** 2).sum(axis=1))
+                scale = float(np.median(gains))
+                gains, static = gains / scale, static * scale
+            self.static, self.gains[use] = static, gains
+            if round_ == rounds - 1:
+                break
+            rms = []
+            for n in use:
+                d = self.sign * (1.0 - self.profiles[n] / (self.gains[n] * self.static))
+                window, valid, start = grid_window(d, positions[n], size, center)
+                fit = plate.fit(window, valid, positions[n] - start - center, kernels[n, 0],
+                                kernels[n, 1], reach)
+                moved = math.nan if fit is None else fit[0] + start + center - positions[n]
+                if not abs(moved) <= 8.0:
+                    ok[n] = False
+                    continue
+                positions[n] += moved
+                kernels[n] = fit[1:3]
+                rms.append(fit[5])
+        self.plate, self.kernels, self.positions = plate, kernels, positions
+        return rms
+
+    def _solve(self, start, spectra, mask, data, coverage):
+        """Return the regularised least-squares plate (PCG from ``start``)."""
+        size = start.size
+        conj = np.conj(spectra)
+        lam = self.regularisation
+        diagonal = coverage * (np.abs(spectra) ** 2).sum(axis=0) + lam
+
+        def normal(x):
+            model = np.fft.irfft(spectra * np.fft.rfft(x), size, axis=1) * mask
+            return np.fft.irfft((conj * np.fft.rfft(model, axis=1)).sum(axis=0), size) + lam * x
+
+        def precondition(r):
+            return np.fft.irfft(np.fft.rfft(r) / diagonal, size)
+
+        b = np.fft.irfft((conj * np.fft.rfft(data, axis=1)).sum(axis=0), size)
+        x = start.copy()
+        r = b - normal(x)
+        z = precondition(r)
+        p = z.copy()
+        rz = float(r @ z)
+        goal = 1e-10 * float(b @ b)
+        for _ in range(self.iterations):
+            q = normal(p)
+            alpha = rz / float(p @ q)
+            x += alpha * p
+            r -= alpha * q
+            if float(r @ r) < goal:
+                break
+            z = precondition(r)
+            rz_new = float(r @ z)
+            p = z + (rz_new / rz) * p
+            rz = rz_new
+        return x
+
+
 class PlateMarkTracker:
     """Track one mark, with the plate's texture learned when it has one (see the module).
 
@@ -241,7 +389,6 @@ class PlateMarkTracker:
         self.name = name
         self.exposure_fraction = float(exposure_fraction)
         self._fallback = CentroidMarkTracker(self.roi, self.config, name, exposure_fraction)
-        self._line = Baseline(self.roi[2], 0)
         self.plate: PlateModel | None = None
         self.texture = 0.0
         self.weights: np.ndarray | None = None
@@ -309,9 +456,8 @@ class PlateMarkTracker:
     def _learn(self, regions, found) -> None:
         """Learn row weights, static field and plate; leave ``plate`` None on failure."""
         cfg = self.config
-        x, w = self.roi[0], self.roi[2]
-        positions = np.array([m.position_px - x if m.valid else math.nan for m in found])
-        extents = np.array([m.extent_px if m.valid else math.nan for m in found])
+        w = self.roi[2]
+        positions, extents = self._first_positions(regions)
         weights = [row_weights(r, int(p - e / 2), int(p + e / 2), cfg.pad_px, self.polarity)
                    for r, p, e in zip(regions, positions, extents, strict=True)
                    if math.isfinite(p)]
@@ -325,83 +471,68 @@ class PlateMarkTracker:
         outside = np.abs(columns[None, :] - positions[:, None]) > (extents[:, None] / 2 + 8.0)
         outside &= np.isfinite(positions)[:, None]
         masked = np.where(outside, profiles, np.nan)
-        static = np.nanmedian(masked, axis=0)
-        for _ in range(2):
-            gains = np.nanmedian(masked / static, axis=1)
-            static = np.nanmedian(masked / gains[:, None], axis=0)
+        with np.errstate(all='ignore'):
+            static = np.nanmedian(masked, axis=0)
         if not np.all(np.isfinite(static)) or static.min() < cfg.min_baseline:
             return
-        self.static = static
         self._half = 0.5 * float(np.nanpercentile(extents, 10))
-        longest = float(np.nanmax(extents)) - 2.0 * self._half
-        support = self._half + cfg.pad_px + min(longest, cfg.max_blur_px) + 24.0
+        f = self.exposure_fraction
+        kernels = np.full((positions.size, 2), np.nan)
+        for n in range(1, positions.size - 1):
+            before, middle, after = positions[n - 1:n + 2]
+            kernels[n] = (abs(after - before) / 2 * f, (after - 2 * middle + before) * f * f / 2)
+        solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
+        reach = self._half + cfg.pad_px
+        rms = solver.learn(positions, kernels, reach + 8.0, ROUNDS)
+        if solver.plate is None:
+            return
+        center = solver.plate.mark_center(reach)
+        if not math.isfinite(center):
+            return
+        longest = float(np.nanmax(solver.kernels[:, 0])) if np.any(
+            np.isfinite(solver.kernels[:, 0])) else 0.0
+        support = reach + 8.0 + min(longest, cfg.max_blur_px) + 16.0
         size = 64
         while size < 2 * support + 32:
             size *= 2
-        deficits = [self._deficit(p, c, e) for p, c, e in zip(profiles, positions, extents,
-                                                               strict=True)]
-        f = self.exposure_fraction
-        kernels = []
-        for n in range(len(positions)):
-            if 0 < n < len(positions) - 1 and np.all(np.isfinite(positions[n - 1:n + 2])):
-                before, middle, after = positions[n - 1:n + 2]
-                kernels.append((abs(after - before) / 2 * f, (after - 2 * middle + before)
-                                * f * f / 2))
-            else:
-                kernels.append(None)
-        plate = None
-        rms = []
-        for round_ in range(ROUNDS):
-            candidate = PlateModel(size, support)
-            for n, d in enumerate(deficits):
-                if d is None or kernels[n] is None or not math.isfinite(positions[n]):
-                    continue
-                window, valid, j0 = self._window(d, positions[n], size)
-                blur, curve = kernels[n]
-                candidate.add(window, valid, positions[n] - j0 - candidate.center, blur, curve,
-                              support - blur / 2 - abs(curve) / 4 - 8.0)
-            if candidate.frames < 4:
-                return
-            candidate.solve()
-            center = candidate.mark_center(self._half + cfg.pad_px)
-            if not math.isfinite(center):
-                return
-            candidate.shift_origin(center)
-            positions = positions + center
-            plate = candidate
-            if round_ == ROUNDS - 1:
-                break
-            rms = []
-            for n, d in enumerate(deficits):
-                if d is None or not math.isfinite(positions[n]):
-                    continue
-                blur, curve = kernels[n] if kernels[n] is not None else (
-                    max(extents[n] - 2 * self._half, 0.0), 0.0)
-                window, valid, j0 = self._window(d, positions[n], size)
-                fit = plate.fit(window, valid, positions[n] - j0 - plate.center,
-                                blur, curve, self._half + cfg.pad_px + 8.0)
-                if fit is None or abs(fit[0] + j0 + plate.center - positions[n]) > 8.0:
-                    kernels[n] = None
-                    continue
-                positions[n] = fit[0] + j0 + plate.center
-                kernels[n] = (fit[1], fit[2])
-                rms.append(fit[5])
-        self.plate = plate
-        self._rms = float(np.median(rms)) if rms else 1.0
+        local = PlateModel(size, support)
+        index = np.arange(size) - local.center + solver.plate.center
+        local.values = solver.plate.model(-center, 0.0, 0.0).take(index, mode='wrap') * tukey(
+            size, local.center, support, 8.0)
+        local.spectrum = np.fft.rfft(local.values)
+        self.plate = local
+        self.static = solver.static
+        self._rms = float(np.median(rms)) if len(rms) else 1.0
 
-    def _deficit(self, profile, center, extent):
-        """Return the deficit against static field x a line fitted away from the mark."""
-        ratio = profile / self.static
-        keep = np.ones(ratio.size, dtype=bool)
-        if math.isfinite(center):
-            reach = extent / 2.0 + 8.0
-            keep[max(int(center - reach), 0):max(int(center + reach) + 1, 0)] = False
-        if np.count_nonzero(keep) < 24:
-            keep[:] = True
-        base = self._line.fit(ratio, keep)
-        if base.min() <= 0:
-            return None
-        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - ratio / base)
+    def _first_positions(self, regions):
+        """Return each frame's first position and extent (ROI columns; NaN: not found).
+
+        The strongest dip of the profile against the median profile over the frames (the
+        mark is elsewhere in most of them), its extent where the smoothed deficit exceeds a
+        quarter of its peak, and the deficit centroid over that extent and a pad.
+        """
+        cfg = self.config
+        profiles = np.array([r.mean(axis=0, dtype=np.float64) for r in regions])
+        static = np.median(profiles, axis=0)
+        sign = 1.0 if self.polarity == 'dark' else -1.0
+        positions = np.full(len(regions), np.nan)
+        extents = np.full(len(regions), np.nan)
+        if static.min() < cfg.min_baseline:
+            return positions, extents
+        for n, profile in enumerate(profiles):
+            d = sign * (1.0 - profile / static)
+            dip = locate(d, 0.0, 0.25, cfg.smoothing_px)
+            first, last = dip.lo - cfg.pad_px, dip.hi + cfg.pad_px
+            if first < 1 or last > d.size - 2 or not dip.peak > cfg.min_depth:
+                continue
+            centroid, _, area = deficit_centroid(d, first, last, 1.0)
+            if area > 0:
+                positions[n], extents[n] = centroid, float(dip.hi - dip.lo + 1)
+        return positions, extents
+
+    def _deficit(self, profile, center=math.nan, extent=0.0):
+        """Return the deficit against the static field (gain and offset are fitted later)."""
+        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - profile / self.static)
 
     @staticmethod
     def _window(d, column, size):
