@@ -36,19 +36,20 @@ from collections import deque
 import math
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
-from microball_ros.core.tracking.predict import MotionPredictor
+from microball_ros.core.tracking.predict import Prediction
 from microball_ros.core.tracking.profile import default_saturation, row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
-from microball_ros.core.tracking.template import kernel_spectrum, tukey
+from microball_ros.core.tracking.template import SEGMENTS, kernel_spectrum, tukey
 
 TEXTURE_SCORE = 0.5
-ROUNDS = 3
+ROUNDS = 5
 UPSAMPLE = 8
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 
@@ -90,6 +91,88 @@ def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]
     Plain plates score within about 0.05 of 0, the textured and speckled ones 0.95 or more.
     """
     return texture_score(regions, marks) >= threshold
+
+
+_U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
+_U2 = _U * _U - 1.0 / 12.0
+_MID_L = (_U[1:] + _U[:-1]) / 2.0 - float(np.mean((_U[1:] + _U[:-1]) / 2.0))
+_MID_Q = (_U2[1:] + _U2[:-1]) / 2.0 - float(np.mean((_U2[1:] + _U2[:-1]) / 2.0))
+_WIDTH_L = np.diff(_U)
+_WIDTH_Q = np.diff(_U2)
+
+
+def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
+    """Return the motion kernel's spectrum (as template.kernel_spectrum) and d/dblur, d/dcurve.
+
+    The kernel is the distribution of ``blur u + curve (u^2 - 1/12)``, ``u`` uniform in
+    [-1/2, 1/2], as ``SEGMENTS`` straight segments of equal duration.
+    """
+    mid = blur * _MID_L + curve * _MID_Q
+    half = 0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q)
+    phase = np.outer(mid, k)
+    z = np.outer(half, k)
+    rotor = np.cos(phase) - 1j * np.sin(phase)
+    small = np.abs(z) < 1e-8
+    safe = np.where(small, 1.0, z)
+    sin_z = np.sin(safe)
+    sinc = np.where(small, 1.0, sin_z / safe)
+    d_sinc = np.where(small, 0.0, (np.cos(safe) * safe - sin_z) / (safe * safe))
+    spectrum = (rotor * sinc).mean(axis=0)
+    ik = -1j * k
+    d_blur = (rotor * (ik * _MID_L[:, None] * sinc
+                       + d_sinc * k * (0.5 * _WIDTH_L)[:, None])).mean(axis=0)
+    d_curve = (rotor * (ik * _MID_Q[:, None] * sinc
+                        + d_sinc * k * (0.5 * _WIDTH_Q)[:, None])).mean(axis=0)
+    return spectrum, d_blur, d_curve
+
+
+class TrackPredictor:
+    """Linear prediction of a mark's column from its recent track (as core.tracking.predict).
+
+    The same recurrence ``x[n] = sum a_i x[n - i] + b`` fitted by least squares over the last
+    ``history`` frames, vectorised; constant velocity, then the last position, with less.
+    """
+
+    def __init__(self, order: int = 4, history: int = 60):
+        """Keep ``history`` frames and fit a recurrence of ``order`` past values."""
+        self.order = int(order)
+        self._track: deque[float] = deque(maxlen=int(history))
+
+    def reset(self) -> None:
+        """Forget the track."""
+        self._track.clear()
+
+    def add(self, column: float) -> None:
+        """Append this frame's column (NaN when the mark was lost)."""
+        self._track.append(float(column))
+
+    def predict(self) -> Prediction | None:
+        """Return the prediction for the next frame, or None without any recent position."""
+        track = np.array(self._track)
+        if track.size == 0 or not math.isfinite(track[-1]):
+            return None
+        previous = float(track[-1])
+        before = float(track[-2]) if track.size >= 2 else math.nan
+        p = self.order
+        if track.size > 3 * (p + 1) and np.all(np.isfinite(track[-p:])):
+            windows = sliding_window_view(track, p + 1)
+            windows = windows[np.all(np.isfinite(windows), axis=1)]
+            if len(windows) >= 3 * (p + 1):
+                design = np.column_stack([windows[:, -2::-1], np.ones(len(windows))])
+                goal = windows[:, -1]
+                coef, *_ = np.linalg.lstsq(design, goal, rcond=None)
+                residual = goal - design @ coef
+                spread = math.sqrt(float(residual @ residual) / max(len(goal) - p - 1, 1))
+                recent = track[-p:][::-1]
+                column = float(coef[:-1] @ recent + coef[-1])
+                following = float(coef[:-1] @ np.concatenate([[column], recent[:-1]])
+                                  + coef[-1])
+                return Prediction(column, following, previous, before, max(spread, 0.05))
+        if math.isfinite(before):
+            velocity = previous - before
+            return Prediction(previous + velocity, previous + 2 * velocity, previous, before,
+                              math.inf)
+        return Prediction(previous, previous, previous, before, math.inf)
 
 
 class PlateModel:
@@ -182,43 +265,50 @@ class PlateModel:
         """Fit (delta, blur, curve) with offset and gain linear; None if it fails.
 
         Returns (delta, blur, curve, gain, offset, rms, sigma of delta), from the grid
-        columns within ``reach`` + half the blur of the start.
+        columns within ``reach`` + half the blur of the start (Gauss-Newton, analytic
+        derivatives of the kernel's spectrum).
         """
         span = reach + 0.5 * abs(blur) + 0.25 * abs(curve)
         used = valid & (np.abs(self.grid - delta) <= span)
-        if np.count_nonzero(used) < 12:
+        count = int(np.count_nonzero(used))
+        if count < 12:
             return None
         y = window[used]
-        state = np.array([delta, blur, curve], dtype=float)
-        step_l = 0.5
+        state = np.array([delta, abs(blur), curve], dtype=float)
         result = None
+        ik = -1j * self.k
         for _ in range(iterations):
-            model, slope = self.model(*state, slope=True)
-            m, s = model[used], slope[used]
-            m_l = self.model(state[0], state[1] + step_l, state[2])[used]
-            m_q = self.model(state[0], state[1], state[2] + step_l)[used]
-            ones = np.ones(m.size)
-            basis = np.column_stack([ones, m])
-            (offset, gain), *_ = np.linalg.lstsq(basis, y, rcond=None)
+            spectrum, d_blur, d_curve = kernel_derivatives(self.k, state[1], state[2])
+            shifted = self.spectrum * np.exp(ik * state[0])
+            stack = np.fft.irfft(np.stack([shifted * spectrum, ik * shifted * spectrum,
+                                           shifted * d_blur, shifted * d_curve]), self.size,
+                                 axis=1)[:, used]
+            m = stack[0]
+            m_mean, y_mean = float(m.mean()), float(y.mean())
+            mc = m - m_mean
+            norm = float(mc @ mc)
+            if not norm > 0:
+                return None
+            gain = float(mc @ (y - y_mean)) / norm
+            offset = y_mean - gain * m_mean
             residual = y - offset - gain * m
-            cost = float(residual @ residual)
-            jacobian = np.column_stack([ones, m, gain * s, gain * (m_l - m) / step_l,
-                                        gain * (m_q - m) / step_l])
+            jacobian = np.column_stack([np.ones(count), m, gain * stack[1], gain * stack[2],
+                                        gain * stack[3]])
             normal = jacobian.T @ jacobian
-            result = (state.copy(), float(gain), float(offset), cost, normal, m.size)
+            result = (state.copy(), gain, offset, float(residual @ residual), normal)
             try:
                 step = np.linalg.solve(normal + 1e-9 * np.diag(np.diag(normal) + 1e-12),
                                        jacobian.T @ residual)
             except np.linalg.LinAlgError:
                 return None
-            step[2:] = np.clip(step[2:], -4.0, 4.0)
-            state = state + step[2:]
+            step = np.clip(step[2:], -4.0, 4.0)
+            state = state + step
             state[1] = abs(state[1])
-            if abs(step[2]) < 1e-4 and abs(step[3]) < 0.01 and abs(step[4]) < 0.02:
+            if abs(step[0]) < 1e-4 and abs(step[1]) < 0.01 and abs(step[2]) < 0.02:
                 break
         if result is None or not np.all(np.isfinite(state)):
             return None
-        _, gain, offset, cost, normal, count = result
+        _, gain, offset, cost, normal = result
         variance = cost / max(count - 5, 1)
         try:
             covariance = np.linalg.inv(normal)
@@ -227,6 +317,18 @@ class PlateModel:
         sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
         return (float(state[0]), float(state[1]), float(state[2]), gain, offset,
                 math.sqrt(variance), sigma)
+
+    def local(self, shift: float, support: float) -> 'PlateModel':
+        """Return the part within ``support`` of ``origin + shift`` as a small model there."""
+        size = 64
+        while size < 2 * support + 32:
+            size *= 2
+        local = PlateModel(size, support)
+        index = np.arange(size) - local.center + self.center
+        local.values = self.model(-shift, 0.0, 0.0).take(index, mode='wrap') * tukey(
+            size, local.center, support, 8.0)
+        local.spectrum = np.fft.rfft(local.values)
+        return local
 
 
 def fft_size(minimum: int) -> int:
@@ -324,12 +426,15 @@ class PlateSolver:
             if round_ == rounds - 1:
                 break
             rms = []
+            longest = float(np.max(np.abs(kernels[use, 0])) + np.max(np.abs(kernels[use, 1])))
+            local = plate.local(0.0, reach + 2.0 * longest + 16.0)
             for n in use:
                 d = self.sign * (1.0 - self.profiles[n] / (self.gains[n] * self.static))
-                window, valid, start = grid_window(d, positions[n], size, center)
-                fit = plate.fit(window, valid, positions[n] - start - center, kernels[n, 0],
-                                kernels[n, 1], reach)
-                moved = math.nan if fit is None else fit[0] + start + center - positions[n]
+                window, valid, start = grid_window(d, positions[n], local.size, local.center)
+                fit = local.fit(window, valid, positions[n] - start - local.center,
+                                kernels[n, 0], kernels[n, 1], reach)
+                moved = (math.nan if fit is None
+                         else fit[0] + start + local.center - positions[n])
                 if not abs(moved) <= 8.0:
                     ok[n] = False
                     continue
@@ -395,7 +500,7 @@ class PlateMarkTracker:
         self.static: np.ndarray | None = None
         self._half = 8.0
         self._rms = 1.0
-        self._predictor = MotionPredictor()
+        self._predictor = TrackPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
 
     @property
@@ -491,15 +596,7 @@ class PlateMarkTracker:
             return
         longest = float(np.nanmax(solver.kernels[:, 0])) if np.any(
             np.isfinite(solver.kernels[:, 0])) else 0.0
-        support = reach + 8.0 + min(longest, cfg.max_blur_px) + 16.0
-        size = 64
-        while size < 2 * support + 32:
-            size *= 2
-        local = PlateModel(size, support)
-        index = np.arange(size) - local.center + solver.plate.center
-        local.values = solver.plate.model(-center, 0.0, 0.0).take(index, mode='wrap') * tukey(
-            size, local.center, support, 8.0)
-        local.spectrum = np.fft.rfft(local.values)
+        local = solver.plate.local(center, reach + 8.0 + min(longest, cfg.max_blur_px) + 16.0)
         self.plate = local
         self.static = solver.static
         self._rms = float(np.median(rms)) if len(rms) else 1.0
