@@ -49,7 +49,7 @@ from microball_ros.core.tracking.subpixel import deficit_centroid
 from microball_ros.core.tracking.template import SEGMENTS, kernel_spectrum, tukey
 
 TEXTURE_SCORE = 0.5
-ROUNDS = 5
+ROUNDS = 4
 UPSAMPLE = 8
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 
@@ -108,22 +108,28 @@ def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
     [-1/2, 1/2], as ``SEGMENTS`` straight segments of equal duration.
     """
     mid = blur * _MID_L + curve * _MID_Q
-    half = 0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q)
-    phase = np.outer(mid, k)
-    z = np.outer(half, k)
-    rotor = np.cos(phase) - 1j * np.sin(phase)
-    small = np.abs(z) < 1e-8
-    safe = np.where(small, 1.0, z)
-    sin_z = np.sin(safe)
-    sinc = np.where(small, 1.0, sin_z / safe)
-    d_sinc = np.where(small, 0.0, (np.cos(safe) * safe - sin_z) / (safe * safe))
-    spectrum = (rotor * sinc).mean(axis=0)
+    z = np.outer(0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q), k)
+    rotor = np.exp(np.outer(mid, -1j * k))
+    sinc = np.sinc(z * (1.0 / np.pi))
+    d_sinc = rotor * ((np.cos(z) - sinc) / np.where(np.abs(z) < 1e-12, 1.0, z)) * k
+    common = rotor * sinc
+    spectrum = common.mean(axis=0)
     ik = -1j * k
-    d_blur = (rotor * (ik * _MID_L[:, None] * sinc
-                       + d_sinc * k * (0.5 * _WIDTH_L)[:, None])).mean(axis=0)
-    d_curve = (rotor * (ik * _MID_Q[:, None] * sinc
-                        + d_sinc * k * (0.5 * _WIDTH_Q)[:, None])).mean(axis=0)
+    d_blur = (common * (_MID_L[:, None] * ik)
+              + d_sinc * (0.5 * _WIDTH_L)[:, None]).mean(axis=0)
+    d_curve = (common * (_MID_Q[:, None] * ik)
+               + d_sinc * (0.5 * _WIDTH_Q)[:, None]).mean(axis=0)
     return spectrum, d_blur, d_curve
+
+
+def kernel_spectra(k: np.ndarray, blurs: np.ndarray, curves: np.ndarray,
+                   shifts: np.ndarray) -> np.ndarray:
+    """Return the spectra of several kernels (rows), each shifted by ``shifts`` (px)."""
+    mid = (np.outer(blurs, _MID_L) + np.outer(curves, _MID_Q)
+           + np.asarray(shifts, dtype=float)[:, None])
+    half = 0.5 * (np.outer(blurs, _WIDTH_L) + np.outer(curves, _WIDTH_Q))
+    sinc = np.sinc(half[:, :, None] * (k / np.pi))
+    return (np.exp(mid[:, :, None] * (-1j * k)) * sinc).mean(axis=1)
 
 
 class TrackPredictor:
@@ -304,7 +310,7 @@ class PlateModel:
             step = np.clip(step[2:], -4.0, 4.0)
             state = state + step
             state[1] = abs(state[1])
-            if abs(step[0]) < 1e-4 and abs(step[1]) < 0.01 and abs(step[2]) < 0.02:
+            if abs(step[0]) < 2e-3 and abs(step[1]) < 0.05 and abs(step[2]) < 0.1:
                 break
         if result is None or not np.all(np.isfinite(state)):
             return None
@@ -399,9 +405,7 @@ class PlateSolver:
                 return []
             j0 = np.rint(positions[use]).astype(int) - center
             delta = positions[use] - j0 - center
-            spectra = np.array([kernel_spectrum(plate.k, blur, curve)
-                                for blur, curve in kernels[use]])
-            spectra *= np.exp(-1j * np.outer(delta, plate.k))
+            spectra = kernel_spectra(plate.k, kernels[use, 0], kernels[use, 1], delta)
             rows = np.arange(use.size)[:, None]
             cols = np.arange(w)[None, :] - j0[:, None]
             mask = np.zeros((use.size, size))
@@ -432,7 +436,7 @@ class PlateSolver:
                 d = self.sign * (1.0 - self.profiles[n] / (self.gains[n] * self.static))
                 window, valid, start = grid_window(d, positions[n], local.size, local.center)
                 fit = local.fit(window, valid, positions[n] - start - local.center,
-                                kernels[n, 0], kernels[n, 1], reach)
+                                kernels[n, 0], kernels[n, 1], reach, iterations=2)
                 moved = (math.nan if fit is None
                          else fit[0] + start + local.center - positions[n])
                 if not abs(moved) <= 8.0:
@@ -542,23 +546,26 @@ class PlateMarkTracker:
         if self.polarity is None or len(frames) < 12:
             return
         regions = [roi_region(frame, self.roi, self.name) for frame in frames]
-        found = [self._fallback.measure(frame) for frame in frames]
-        self.reset()
         x = self.roi[0]
-        marks = [(m.position_px - x - m.extent_px / 2.0 - 16.0,
-                  m.position_px - x + m.extent_px / 2.0 + 16.0) if m.valid
-                 else (math.nan, math.nan) for m in found]
-        usable = [i for i, m in enumerate(found) if m.valid]
-        if len(usable) < 8:
+        sample, marks = [], []
+        for region, frame in zip(regions, frames, strict=True):
+            m = self._fallback.measure(frame)
+            if m.valid:
+                sample.append(region)
+                marks.append((m.position_px - x - m.extent_px / 2.0 - 16.0,
+                              m.position_px - x + m.extent_px / 2.0 + 16.0))
+                if len(sample) == 12:
+                    break
+        self.reset()
+        if len(sample) < 8:
             return
-        sample = usable[:12]
-        self.texture = texture_score([regions[i] for i in sample], [marks[i] for i in sample])
+        self.texture = texture_score(sample, marks)
         if self.texture < TEXTURE_SCORE:
             return
-        self._learn(regions, found)
+        self._learn(regions)
         self.reset()
 
-    def _learn(self, regions, found) -> None:
+    def _learn(self, regions) -> None:
         """Learn row weights, static field and plate; leave ``plate`` None on failure."""
         cfg = self.config
         w = self.roi[2]
