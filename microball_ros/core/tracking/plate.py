@@ -13,18 +13,20 @@ the exposure's motion kernel ``K`` (core.tracking.template: a quadratic path, bl
 curvature ``Q``). A frame's deficit is ``d(x) = c + g (D * K)(x - s)`` with ``s`` the position
 averaged over the exposure. The tracker
 
-1. learns from the priming frames the row weights (the mark's depth per row), the static field
-   (illumination and dust fixed in the image: per column the median of the profiles over the
-   frames where the mark is elsewhere) and ``D``, by multi-frame Wiener deconvolution of the
-   frames aligned by their positions, in rounds: the centroid tracker's positions and kernels
-   from neighbouring frames first, then the positions and kernels fitted to the plate learned
-   in the round before. ``D``'s origin is then moved to the mark's centre, the mid-point of
-   its two outer edges (half-depth crossings against the levels on either side of each edge),
-   which a multiplicative texture hardly moves (a centroid is pulled by it);
-2. per frame divides the row-weighted profile by the static field and a line fitted outside
-   the predicted mark (flicker), searches the mark by a matched filter of ``D`` smeared by the
-   predicted motion, gated around the position predicted from the recent track
-   (core.tracking.predict) so texture dips never win, over the whole ROI after a loss;
+1. learns from the priming frames the row weights (the mark's depth per row) and, jointly
+   (``PlateSolver``, alternating least squares), the whole plate's deficit ``D`` seen through
+   the ROI, the static field (illumination and dust fixed in the image) with a gain per frame,
+   and each frame's position and kernel: first positions from the dip's centroid and kernels
+   from neighbouring frames, then rounds of ``D`` (preconditioned conjugate gradients, exact
+   for partial coverage), static field and gains (closed form), positions and kernels (fits).
+   ``D``'s origin is then moved to the mark's centre, the mid-point of its two outer edges
+   (half-depth crossings against the levels on either side of each edge), which a
+   multiplicative texture hardly moves (a centroid is pulled by it);
+2. per frame divides the row-weighted profile by the static field (a gain, flicker, is
+   fitted below), searches the mark by a matched filter of ``D`` smeared by the predicted
+   motion, gated around the position predicted from the recent track (``TrackPredictor``,
+   core.tracking.predict's recurrence, vectorised) so texture dips never win, over the whole
+   ROI after a loss;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
    common to data and model, is signal rather than error;
 4. checks the mark clear of the ROI edges, its contrast ``g`` against recent frames (a covered
