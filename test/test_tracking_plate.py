@@ -1,0 +1,133 @@
+"""PlateMarkTracker: a mark on a plate whose texture moves with it, against ground truth.
+
+The scene is rendered here, exactly for its definition: a plate profile (a dark bar 17 px wide,
+60 % deep, on a random texture of 3 % std and 3 px grain that multiplies the mark too) on a
+grid of 1/16 px, blurred by the optics (Gaussian, 0.8 px), moved sinusoidally (+-200 px at
+2.95 Hz, 30 fps, exposure half the frame period, 64 instants per exposure), integrated over
+each pixel, times a fixed illumination pattern (2 %) that does not move, plus pixel noise.
+Truth is the bar's centre averaged over the exposure, in closed form.
+"""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter1d
+
+from microball_ros.core.tracking import TrackerConfig, track
+from microball_ros.core.tracking.centroid import CentroidMarkTracker
+from microball_ros.core.tracking.plate import (
+    PlateMarkTracker,
+    kernel_derivatives,
+    plate_is_textured,
+    texture_score,
+)
+from microball_ros.core.tracking.template import kernel_spectrum
+import microball_ros.core.tracking.tracker as tracker_module
+
+FPS = 30.0
+OMEGA = 2 * math.pi * 2.95
+AMPLITUDE = 200.0
+WIDTH = 474
+FINE = 16
+
+
+def render(n_frames=120, texture=0.03, static=0.02, noise=0.004, rows=8, seed=3):
+    """Return (frames N x rows x WIDTH float DN, truth column per frame)."""
+    rng = np.random.default_rng(seed)
+    x0 = -int(AMPLITUDE) - 64
+    cells = (WIDTH - 2 * x0) * FINE
+    u = x0 + (np.arange(cells) + 0.5) / FINE
+    grain = gaussian_filter1d(rng.standard_normal(cells), 3.0 * FINE)
+    plate = (1 + texture * grain / grain.std()) if texture > 0 else np.ones(cells)
+    center = WIDTH / 2.0
+    plate = plate * (1 - 0.6 * (np.abs(u - center) <= 8.5))
+    plate = gaussian_filter1d(plate, 0.8 * FINE)
+    cumulative = np.concatenate([[0.0], np.cumsum(plate) / FINE])
+    index = np.arange(cumulative.size)
+    light = 160.0 * (1 + static * np.sin(np.arange(WIDTH) / 7.0))
+    exposure = 0.5 / FPS
+    frames, truth = [], []
+    for n in range(n_frames):
+        start = n / FPS
+        shifts = -AMPLITUDE * np.cos(OMEGA * (start + (np.arange(64) + 0.5) / 64 * exposure))
+        profile = np.zeros(WIDTH)
+        for s in shifts:
+            left = (np.arange(WIDTH) - 0.5 - s - x0) * FINE
+            profile += np.interp(left + FINE, index, cumulative) - np.interp(left, index,
+                                                                             cumulative)
+        image = (light * profile / 64)[None, :] * np.ones((rows, 1))
+        frames.append(image + rng.normal(0.0, noise * 160.0, image.shape))
+        truth.append(center - AMPLITUDE * (math.sin(OMEGA * (start + exposure))
+                                           - math.sin(OMEGA * start)) / (OMEGA * exposure))
+    return np.array(frames), np.array(truth)
+
+
+def tracked(frames, kind, monkeypatch):
+    """Track the scene's one ROI (the whole frame) with the given mark tracker class."""
+    monkeypatch.setattr(tracker_module, 'MarkTracker', kind)
+    result = track(frames, {'mark': (0, 0, WIDTH, frames.shape[1])}, 1e-6, fps=FPS,
+                   exposure=0.5 / FPS)
+    return result.position_px['mark']
+
+
+@pytest.fixture(scope='module')
+def textured_scene():
+    return render()
+
+
+def test_textured_plate_tracked_to_a_tenth_of_a_pixel(textured_scene, monkeypatch):
+    frames, truth = textured_scene
+    x = tracked(frames, PlateMarkTracker, monkeypatch)
+    reported = np.isfinite(x)
+    error = x[reported] - truth[reported]
+    rms = float(np.sqrt(np.mean(error ** 2)))
+    # Measured 0.045 px RMS, 0.08 px max, none lost; the centroid tracker on this scene:
+    # 0.74 px RMS, 1.4 px max, 8 of 120 frames lost (the texture pulls its centroid).
+    assert np.count_nonzero(~reported) <= 1
+    assert rms <= 0.1
+    assert np.max(np.abs(error)) <= 0.25
+
+
+def test_centroid_tracker_fails_on_this_scene(textured_scene, monkeypatch):
+    """The scene is hard: the plain centroid is worse than the bound above by far."""
+    frames, truth = textured_scene
+    x = tracked(frames, CentroidMarkTracker, monkeypatch)
+    reported = np.isfinite(x)
+    error = x[reported] - truth[reported]
+    assert np.count_nonzero(~reported) > 2 or np.sqrt(np.mean(error ** 2)) > 0.3
+
+
+def test_texture_score_plain_versus_textured():
+    plain, _ = render(n_frames=6, texture=0.0, static=0.0)
+    rough, _ = render(n_frames=6, texture=0.03, static=0.0)
+    tracker = CentroidMarkTracker((0, 0, WIDTH, plain.shape[1]), TrackerConfig())
+    marks = []
+    for frame in plain:
+        m = tracker.measure(frame)
+        marks.append((m.position_px - 30.0, m.position_px + 30.0))
+    # The bar is at the same place in both scenes (same motion).
+    assert abs(texture_score(list(plain), marks)) <= 0.15
+    assert texture_score(list(rough), marks) >= 0.9
+    assert not plate_is_textured(list(plain), marks)
+    assert plate_is_textured(list(rough), marks)
+
+
+def test_plain_plate_is_measured_exactly_like_the_centroid_tracker(monkeypatch):
+    frames, truth = render(n_frames=40, texture=0.0, static=0.0)
+    plate = tracked(frames, PlateMarkTracker, monkeypatch)
+    centroid = tracked(frames, CentroidMarkTracker, monkeypatch)
+    assert np.array_equal(plate, centroid, equal_nan=True)
+    assert np.nanmax(np.abs(plate - truth)) < 0.5
+
+
+@pytest.mark.parametrize(('blur', 'curve'), [(0.0, 0.0), (12.0, 3.0), (55.0, -8.0)])
+def test_kernel_derivatives_match_the_template_kernel(blur, curve):
+    k = 2 * np.pi * np.fft.rfftfreq(256)
+    spectrum, d_blur, d_curve = kernel_derivatives(k, blur, curve)
+    h = 1e-5
+    assert np.allclose(spectrum, kernel_spectrum(k, blur, curve), atol=1e-12)
+    numeric = (kernel_spectrum(k, blur + h, curve) - kernel_spectrum(k, blur - h, curve)) / (2 * h)
+    assert np.allclose(d_blur, numeric, atol=1e-8)
+    numeric = (kernel_spectrum(k, blur, curve + h) - kernel_spectrum(k, blur, curve - h)) / (2 * h)
+    assert np.allclose(d_curve, numeric, atol=1e-8)
