@@ -16,12 +16,8 @@ from scipy.ndimage import gaussian_filter1d
 
 from microball_ros.core.tracking import TrackerConfig, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
-from microball_ros.core.tracking.plate import (
-    PlateMarkTracker,
-    kernel_derivatives,
-    plate_is_textured,
-    texture_score,
-)
+from microball_ros.core.tracking.plate import PlateMarkTracker, plate_is_textured, texture_score
+from microball_ros.core.tracking.plate_model import kernel_derivatives
 from microball_ros.core.tracking.template import kernel_spectrum
 import microball_ros.core.tracking.tracker as tracker_module
 

@@ -1,0 +1,409 @@
+"""The learned plate of core.tracking.plate: motion kernels, the plate model, its solver.
+
+``kernel_derivatives`` / ``kernel_spectra``: the exposure's motion kernel (a quadratic path,
+blur ``L`` and curvature ``Q``, as core.tracking.template) and its derivatives, in frequency;
+``TrackPredictor``: core.tracking.predict's linear recurrence, vectorised; ``PlateModel``: the
+plate's relative deficit ``D(u)`` in plate coordinates, smeared and placed per frame;
+``PlateSolver``: the joint least-squares learning of ``D``, the static field and the frames'
+gains, positions and kernels (see core.tracking.plate).
+"""
+
+from collections import deque
+import math
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from microball_ros.core.tracking.predict import Prediction
+from microball_ros.core.tracking.template import SEGMENTS, kernel_spectrum, tukey
+
+UPSAMPLE = 8  # the plate model's grid: 1/8 px
+
+_U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
+_U2 = _U * _U - 1.0 / 12.0
+_MID_L = (_U[1:] + _U[:-1]) / 2.0 - float(np.mean((_U[1:] + _U[:-1]) / 2.0))
+_MID_Q = (_U2[1:] + _U2[:-1]) / 2.0 - float(np.mean((_U2[1:] + _U2[:-1]) / 2.0))
+_WIDTH_L = np.diff(_U)
+_WIDTH_Q = np.diff(_U2)
+
+
+def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
+    """Return the motion kernel's spectrum (as template.kernel_spectrum) and d/dblur, d/dcurve.
+
+    The kernel is the distribution of ``blur u + curve (u^2 - 1/12)``, ``u`` uniform in
+    [-1/2, 1/2], as ``SEGMENTS`` straight segments of equal duration.
+    """
+    mid = blur * _MID_L + curve * _MID_Q
+    z = np.outer(0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q), k)
+    rotor = np.exp(np.outer(mid, -1j * k))
+    sinc = np.sinc(z * (1.0 / np.pi))
+    d_sinc = rotor * ((np.cos(z) - sinc) / np.where(np.abs(z) < 1e-12, 1.0, z)) * k
+    common = rotor * sinc
+    spectrum = common.mean(axis=0)
+    ik = -1j * k
+    d_blur = (common * (_MID_L[:, None] * ik)
+              + d_sinc * (0.5 * _WIDTH_L)[:, None]).mean(axis=0)
+    d_curve = (common * (_MID_Q[:, None] * ik)
+               + d_sinc * (0.5 * _WIDTH_Q)[:, None]).mean(axis=0)
+    return spectrum, d_blur, d_curve
+
+
+def kernel_spectra(k: np.ndarray, blurs: np.ndarray, curves: np.ndarray,
+                   shifts: np.ndarray) -> np.ndarray:
+    """Return the spectra of several kernels (rows), each shifted by ``shifts`` (px)."""
+    mid = (np.outer(blurs, _MID_L) + np.outer(curves, _MID_Q)
+           + np.asarray(shifts, dtype=float)[:, None])
+    half = 0.5 * (np.outer(blurs, _WIDTH_L) + np.outer(curves, _WIDTH_Q))
+    sinc = np.sinc(half[:, :, None] * (k / np.pi))
+    return (np.exp(mid[:, :, None] * (-1j * k)) * sinc).mean(axis=1)
+
+
+class TrackPredictor:
+    """Linear prediction of a mark's column from its recent track (as core.tracking.predict).
+
+    The same recurrence ``x[n] = sum a_i x[n - i] + b`` fitted by least squares over the last
+    ``history`` frames, vectorised; constant velocity, then the last position, with less.
+    """
+
+    def __init__(self, order: int = 4, history: int = 60):
+        """Keep ``history`` frames and fit a recurrence of ``order`` past values."""
+        self.order = int(order)
+        self._track: deque[float] = deque(maxlen=int(history))
+
+    def reset(self) -> None:
+        """Forget the track."""
+        self._track.clear()
+
+    def add(self, column: float) -> None:
+        """Append this frame's column (NaN when the mark was lost)."""
+        self._track.append(float(column))
+
+    def predict(self) -> Prediction | None:
+        """Return the prediction for the next frame, or None without any recent position."""
+        track = np.array(self._track)
+        if track.size == 0 or not math.isfinite(track[-1]):
+            return None
+        previous = float(track[-1])
+        before = float(track[-2]) if track.size >= 2 else math.nan
+        p = self.order
+        if track.size > 3 * (p + 1) and np.all(np.isfinite(track[-p:])):
+            windows = sliding_window_view(track, p + 1)
+            windows = windows[np.all(np.isfinite(windows), axis=1)]
+            if len(windows) >= 3 * (p + 1):
+                design = np.column_stack([windows[:, -2::-1], np.ones(len(windows))])
+                goal = windows[:, -1]
+                coef, *_ = np.linalg.lstsq(design, goal, rcond=None)
+                residual = goal - design @ coef
+                spread = math.sqrt(float(residual @ residual) / max(len(goal) - p - 1, 1))
+                recent = track[-p:][::-1]
+                column = float(coef[:-1] @ recent + coef[-1])
+                following = float(coef[:-1] @ np.concatenate([[column], recent[:-1]])
+                                  + coef[-1])
+                return Prediction(column, following, previous, before, max(spread, 0.05))
+        if math.isfinite(before):
+            velocity = previous - before
+            return Prediction(previous + velocity, previous + 2 * velocity, previous, before,
+                              math.inf)
+        return Prediction(previous, previous, previous, before, math.inf)
+
+
+class PlateModel:
+    """The plate's deficit ``D`` near the mark on a periodic grid, origin at ``size // 2``."""
+
+    def __init__(self, size: int, support: float, regularisation: float = 1e-3,
+                 center: int | None = None):
+        """Create an empty model trusted within ``support`` px of its origin."""
+        self.size = int(size)
+        self.center = self.size // 2 if center is None else int(center)
+        self.k = 2 * np.pi * np.fft.rfftfreq(self.size)
+        self.regularisation = float(regularisation)
+        self._num = np.zeros(self.k.size, complex)
+        self._den = np.zeros(self.k.size)
+        self._shape = tukey(self.size, self.center, float(support), 8.0)
+        self.grid = np.arange(self.size) - self.center
+        self.spectrum = np.zeros(self.k.size, complex)
+        self.values = np.zeros(self.size)
+        self.frames = 0
+
+    def add(self, window, valid, delta, blur, curve, half) -> None:
+        """Accumulate one frame's grid-aligned deficit (``delta`` = s - origin column)."""
+        taper = tukey(self.size, self.center + delta, half, 8.0) * valid
+        h = kernel_spectrum(self.k, blur, curve) * np.exp(-1j * self.k * delta)
+        self._num += np.conj(h) * np.fft.rfft(window * taper)
+        self._den += np.abs(h) ** 2
+        self.frames += 1
+
+    def solve(self) -> None:
+        """Deconvolve what was accumulated into ``values`` and ``spectrum``."""
+        floor = self.regularisation * float(self._den.max())
+        self.values = np.fft.irfft(self._num / (self._den + floor), self.size) * self._shape
+        self.spectrum = np.fft.rfft(self.values)
+
+    def shift_origin(self, shift: float) -> None:
+        """Move the origin by ``shift`` px: the new ``D(u)`` is the old ``D(u + shift)``."""
+        self.spectrum = self.spectrum * np.exp(1j * self.k * shift)
+        self.values = np.fft.irfft(self.spectrum, self.size)
+
+    def model(self, delta, blur, curve, slope=False):
+        """Return D smeared by (blur, curve) with its origin at ``center + delta`` (grid)."""
+        spectrum = self.spectrum * kernel_spectrum(self.k, blur, curve) * np.exp(
+            -1j * self.k * delta)
+        if not slope:
+            return np.fft.irfft(spectrum, self.size)
+        return (np.fft.irfft(spectrum, self.size),
+                np.fft.irfft(-1j * self.k * spectrum, self.size))
+
+    def mark_center(self, reach: float) -> float:
+        """Return the mark's centre (px from the origin): the mid-point of its outer edges.
+
+        On the band-limited interpolation of D: the outermost crossings, within ``reach`` of
+        the origin, of the level half-way between the values 2-5 px outside and inside each
+        edge; NaN when there is no mark.
+        """
+        fine = np.fft.irfft(self.spectrum, self.size * UPSAMPLE) * UPSAMPLE
+        u = (np.arange(fine.size) - self.center * UPSAMPLE) / UPSAMPLE
+        near = np.abs(u) <= reach
+        peak = float(fine[near].max())
+        if not peak > 0:
+            return math.nan
+        level_left = level_right = 0.5 * peak
+        left = right = math.nan
+        for _ in range(3):
+            above_left = np.flatnonzero(near & (fine > level_left))
+            above_right = np.flatnonzero(near & (fine > level_right))
+            if above_left.size == 0 or above_right.size == 0:
+                return math.nan
+            left = self._crossing(fine, u, int(above_left[0]), level_left, -1)
+            right = self._crossing(fine, u, int(above_right[-1]), level_right, 1)
+            level_left = self._level(fine, u, left)
+            level_right = self._level(fine, u, right)
+        return 0.5 * (left + right)
+
+    @staticmethod
+    def _crossing(fine, u, index, level, side):
+        """Return u where ``fine`` crosses ``level`` between index and its outer neighbour."""
+        a, b = fine[index + side], fine[index]
+        t = (level - a) / (b - a) if b != a else 0.5
+        return float(u[index + side] + t * (u[index] - u[index + side]))
+
+    @staticmethod
+    def _level(fine, u, edge):
+        """Return the mean of the median levels 2-5 px on either side of an edge."""
+        outer = fine[(np.abs(u - edge) >= 2.0) & (np.abs(u - edge) <= 5.0) & (u < edge)]
+        inner = fine[(np.abs(u - edge) >= 2.0) & (np.abs(u - edge) <= 5.0) & (u > edge)]
+        return 0.5 * (float(np.median(outer)) + float(np.median(inner)))
+
+    def fit(self, window, valid, delta, blur, curve, reach, iterations=8):
+        """Fit (delta, blur, curve) with offset and gain linear; None if it fails.
+
+        Returns (delta, blur, curve, gain, offset, rms, sigma of delta), from the grid
+        columns within ``reach`` + half the blur of the start (Gauss-Newton, analytic
+        derivatives of the kernel's spectrum).
+        """
+        span = reach + 0.5 * abs(blur) + 0.25 * abs(curve)
+        used = valid & (np.abs(self.grid - delta) <= span)
+        count = int(np.count_nonzero(used))
+        if count < 12:
+            return None
+        y = window[used]
+        state = np.array([delta, abs(blur), curve], dtype=float)
+        result = None
+        ik = -1j * self.k
+        for _ in range(iterations):
+            spectrum, d_blur, d_curve = kernel_derivatives(self.k, state[1], state[2])
+            shifted = self.spectrum * np.exp(ik * state[0])
+            stack = np.fft.irfft(np.stack([shifted * spectrum, ik * shifted * spectrum,
+                                           shifted * d_blur, shifted * d_curve]), self.size,
+                                 axis=1)[:, used]
+            m = stack[0]
+            m_mean, y_mean = float(m.mean()), float(y.mean())
+            mc = m - m_mean
+            norm = float(mc @ mc)
+            if not norm > 0:
+                return None
+            gain = float(mc @ (y - y_mean)) / norm
+            offset = y_mean - gain * m_mean
+            residual = y - offset - gain * m
+            jacobian = np.column_stack([np.ones(count), m, gain * stack[1], gain * stack[2],
+                                        gain * stack[3]])
+            normal = jacobian.T @ jacobian
+            result = (state.copy(), gain, offset, float(residual @ residual), normal)
+            try:
+                step = np.linalg.solve(normal + 1e-9 * np.diag(np.diag(normal) + 1e-12),
+                                       jacobian.T @ residual)
+            except np.linalg.LinAlgError:
+                return None
+            step = np.clip(step[2:], -4.0, 4.0)
+            state = state + step
+            state[1] = abs(state[1])
+            if abs(step[0]) < 2e-3 and abs(step[1]) < 0.05 and abs(step[2]) < 0.1:
+                break
+        if result is None or not np.all(np.isfinite(state)):
+            return None
+        _, gain, offset, cost, normal = result
+        variance = cost / max(count - 5, 1)
+        try:
+            covariance = np.linalg.inv(normal)
+        except np.linalg.LinAlgError:
+            return None
+        sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
+        return (float(state[0]), float(state[1]), float(state[2]), gain, offset,
+                math.sqrt(variance), sigma)
+
+    def local(self, shift: float, support: float) -> 'PlateModel':
+        """Return the part within ``support`` of ``origin + shift`` as a small model there."""
+        size = 64
+        while size < 2 * support + 32:
+            size *= 2
+        local = PlateModel(size, support)
+        index = np.arange(size) - local.center + self.center
+        local.values = self.model(-shift, 0.0, 0.0).take(index, mode='wrap') * tukey(
+            size, local.center, support, 8.0)
+        local.spectrum = np.fft.rfft(local.values)
+        return local
+
+
+def fft_size(minimum: int) -> int:
+    """Return the smallest size >= ``minimum`` with no prime factor above 5 (a fast FFT)."""
+    size = max(int(minimum), 1)
+    while True:
+        rest = size
+        for prime in (2, 3, 5):
+            while rest % prime == 0:
+                rest //= prime
+        if rest == 1:
+            return size
+        size += 1
+
+
+def grid_window(d, column, size, center):
+    """Return d on a grid with its origin column ``center`` near ``column``; mask; start."""
+    j0 = int(round(column)) - center
+    index = np.arange(j0, j0 + size)
+    valid = (index >= 0) & (index < d.size)
+    window = np.zeros(size)
+    window[valid] = d[index[valid]]
+    return window, valid, j0
+
+
+class PlateSolver:
+    """The plate seen through one ROI, learned from frames by alternating least squares.
+
+    Model of frame n's profile: ``gain_n * static(x) * (1 - sign * (D * K_n)(x - s_n))``,
+    ``D`` the whole plate's relative deficit on one grid (every column any frame saw), ``K_n``
+    the exposure's motion kernel. Rounds of: ``D`` given the rest (preconditioned conjugate
+    gradients on the normal equations, circular convolutions by FFT, batched over frames);
+    ``static`` and the gains given ``D`` (closed form); each frame's position and kernel
+    given both (``PlateModel.fit``).
+    """
+
+    def __init__(self, profiles: np.ndarray, static: np.ndarray, sign: float,
+                 regularisation: float = 0.05, iterations: int = 60):
+        """Keep the frames' profiles (frames x columns) and a first static field."""
+        self.profiles = profiles
+        self.static = static.copy()
+        self.sign = float(sign)
+        self.gains = np.ones(len(profiles))
+        self.regularisation = float(regularisation)
+        self.iterations = int(iterations)
+        self.plate: PlateModel | None = None
+        self.kernels = np.full((len(profiles), 2), np.nan)
+        self.positions = np.full(len(profiles), np.nan)
+
+    def learn(self, positions, kernels, reach, rounds) -> list[float]:
+        """Learn from first positions and kernels (NaN: unknown); return the fits' residuals."""
+        count, w = self.profiles.shape
+        positions = np.array(positions, dtype=float)
+        kernels = np.array(kernels, dtype=float)
+        ok = np.isfinite(positions) & np.all(np.isfinite(kernels), axis=1)
+        if np.count_nonzero(ok) < 8:
+            return []
+        margin = float(np.max(np.abs(kernels[ok, 0]))) + abs(float(
+            np.max(np.abs(kernels[ok, 1])))) + 48.0
+        center = int(math.ceil(float(positions[ok].max()) + margin))
+        size = fft_size(int(math.ceil(center + w - float(positions[ok].min()) + margin)))
+        plate = PlateModel(size, float(size), center=center)
+        values = np.zeros(size)
+        rms: list[float] = []
+        for round_ in range(rounds):
+            use = np.flatnonzero(ok)
+            if use.size < 8:
+                return []
+            j0 = np.rint(positions[use]).astype(int) - center
+            delta = positions[use] - j0 - center
+            spectra = kernel_spectra(plate.k, kernels[use, 0], kernels[use, 1], delta)
+            rows = np.arange(use.size)[:, None]
+            cols = np.arange(w)[None, :] - j0[:, None]
+            mask = np.zeros((use.size, size))
+            mask[rows, cols] = 1.0
+            data = np.zeros((use.size, size))
+            ratio = self.profiles[use] / (self.gains[use][:, None] * self.static[None, :])
+            data[rows, cols] = self.sign * (1.0 - ratio)
+            values = self._solve(values, spectra, mask, data, w / size)
+            plate.values = values
+            plate.spectrum = np.fft.rfft(values)
+            model = 1.0 - self.sign * np.fft.irfft(plate.spectrum * spectra, size,
+                                                   axis=1)[rows, cols]
+            measured, gains = self.profiles[use], self.gains[use]
+            for _ in range(2):
+                static = ((gains[:, None] * measured * model).sum(axis=0)
+                          / (gains[:, None] ** 2 * model ** 2).sum(axis=0))
+                gains = ((measured * static * model).sum(axis=1)
+                         / ((static * model) ** 2).sum(axis=1))
+                scale = float(np.median(gains))
+                gains, static = gains / scale, static * scale
+            self.static, self.gains[use] = static, gains
+            if round_ == rounds - 1:
+                break
+            rms = []
+            longest = float(np.max(np.abs(kernels[use, 0])) + np.max(np.abs(kernels[use, 1])))
+            local = plate.local(0.0, reach + 2.0 * longest + 16.0)
+            for n in use:
+                d = self.sign * (1.0 - self.profiles[n] / (self.gains[n] * self.static))
+                window, valid, start = grid_window(d, positions[n], local.size, local.center)
+                fit = local.fit(window, valid, positions[n] - start - local.center,
+                                kernels[n, 0], kernels[n, 1], reach, iterations=2)
+                moved = (math.nan if fit is None
+                         else fit[0] + start + local.center - positions[n])
+                if not abs(moved) <= 8.0:
+                    ok[n] = False
+                    continue
+                positions[n] += moved
+                kernels[n] = fit[1:3]
+                rms.append(fit[5])
+        self.plate, self.kernels, self.positions = plate, kernels, positions
+        return rms
+
+    def _solve(self, start, spectra, mask, data, coverage):
+        """Return the regularised least-squares plate (PCG from ``start``)."""
+        size = start.size
+        conj = np.conj(spectra)
+        lam = self.regularisation
+        diagonal = coverage * (np.abs(spectra) ** 2).sum(axis=0) + lam
+
+        def normal(x):
+            model = np.fft.irfft(spectra * np.fft.rfft(x), size, axis=1) * mask
+            return np.fft.irfft((conj * np.fft.rfft(model, axis=1)).sum(axis=0), size) + lam * x
+
+        def precondition(r):
+            return np.fft.irfft(np.fft.rfft(r) / diagonal, size)
+
+        b = np.fft.irfft((conj * np.fft.rfft(data, axis=1)).sum(axis=0), size)
+        x = start.copy()
+        r = b - normal(x)
+        z = precondition(r)
+        p = z.copy()
+        rz = float(r @ z)
+        goal = 1e-10 * float(b @ b)
+        for _ in range(self.iterations):
+            q = normal(p)
+            alpha = rz / float(p @ q)
+            x += alpha * p
+            r -= alpha * q
+            if float(r @ r) < goal:
+                break
+            z = precondition(r)
+            rz_new = float(r @ z)
+            p = z + (rz_new / rz) * p
+            rz = rz_new
+        return x
