@@ -40,14 +40,17 @@ import math
 from typing import ClassVar
 
 import numpy as np
-from scipy import optimize, signal, stats
+from scipy import fft, optimize, signal, stats
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from microball_ros.core import friction
 
 SUBSTEPS = 8  # fine steps per sample along which the states are integrated
+PAD = 2  # samples of v_rel extrapolated at each end of a piece, under the camera's kernel
 WARMUP_PERIODS = 1.0  # the periodic initial state: the state after this many periods
 MAX_RELAXATION = 700.0  # exp(-x) of a chunk of the time-varying recurrence stays in float64
+SEARCH_SAMPLES = 3600  # longer records: candidates fitted on the first this many samples
+REFIT_EVALUATIONS = 30  # then the chosen one refitted to the whole record from there
 LOG_SPAN = math.log(1e4)  # bounds: each parameter within 1e4 of its start either way
 
 
@@ -95,8 +98,8 @@ class Dahl:
 class _Piece:
     """A contiguous stretch of samples: [start, stop) into the fitted arrays, v_rel fine.
 
-    ``fine`` spans one sample before the first to one after the last (the camera's kernel
-    needs them), SUBSTEPS points per sample: sample n of the piece is fine[(n + 1) m].
+    ``fine`` spans PAD samples before the first to PAD after the last (the camera's kernel
+    needs them), SUBSTEPS points per sample: sample n of the piece is fine[(n + PAD) m].
     """
 
     start: int
@@ -150,7 +153,7 @@ class Track:
             if (stop - start - 1) * m < period + 2 * m:
                 continue
             coarse = np.arange(stop - start) * self.dt
-            fine = np.arange(-m, (stop - start) * m + 1) * self.h
+            fine = np.arange(-PAD * m, (stop - start - 1 + PAD) * m + 1) * self.h
             if position is None:
                 spline = CubicSpline(coarse, self.velocity[start:stop])
                 v = spline(fine)
@@ -169,14 +172,16 @@ class Track:
         m = self.substeps
         count = piece.stop - piece.start
         if not self.camera:
-            return fine_acceleration[m:m + count * m:m]
-        smooth = np.convolve(fine_acceleration, self.kernel, mode='same')
-        crude = smooth[m:m + count * m:m]
+            return fine_acceleration[PAD * m:(PAD + count) * m:m]
+        half = len(self.kernel) // 2
+        windows = np.lib.stride_tricks.sliding_window_view(fine_acceleration, len(self.kernel))
+        first = PAD * m - half
+        crude = windows[first:first + count * m:m] @ self.kernel
         # Compensated over the even extension: the periodic FFT sees no jump at the ends.
         mirrored = np.concatenate([crude, crude[::-1]])
-        frequencies = np.fft.rfftfreq(2 * count, self.dt)
+        frequencies = fft.rfftfreq(2 * count, self.dt)
         gain = 1.0 / (np.sinc(frequencies * self.dt) ** 2 * np.sinc(frequencies * self.exposure))
-        return np.fft.irfft(np.fft.rfft(mirrored) * gain, 2 * count)[:count]
+        return fft.irfft(fft.rfft(mirrored) * gain, 2 * count)[:count]
 
     def predict(self, model, params):
         """Return the a_slid the model with params predicts at the kept samples."""
@@ -321,8 +326,11 @@ def _scan(candidate, track, grid, linear=None):
     return best
 
 
-def _starts(track, fit, comparison, fitted):
-    """Return {candidate name: (grid of starting parameters, linear parameter or None)}."""
+def starts(track, fit, comparison, fitted):
+    """Return {candidate name: (grid of starting parameters, linear parameter or None)}.
+
+    ``fitted``: the candidates fitted so far (LuGre starts from Dahl's fit).
+    """
     kept = track.kept
     v, a = track.velocity[kept], track.acceleration[kept]
     v_top = float(np.percentile(np.abs(v), 99)) or 1e-3
@@ -367,13 +375,13 @@ def _intervals(jacobian, residual, blocks, k):
     return stats.t.ppf(0.975, max(count - 1, 1)) * np.sqrt(np.maximum(iid, sandwich))
 
 
-def fit_candidate(candidate, track, start, blocks):
+def fit_candidate(candidate, track, start, blocks, max_nfev=None):
     """Fit one dynamic model by output error; return its entry (a dict), 'error' if it failed.
 
-    ``start``: (grid, linear): the starting parameters are the best of grid (_scan).
-    ``blocks``: the batch-means block of every kept sample.
+    ``start``: the parameters to start from (a dict), or (grid, linear): the best of grid
+    (_scan). ``blocks``: the batch-means block of every kept sample.
     """
-    params = _scan(candidate, track, *start)
+    params = start if isinstance(start, dict) else _scan(candidate, track, *start)
     names = candidate.names
     scales = np.array([params[name] for name in names], dtype=float)
     measured, k = track.measured, len(names)
@@ -386,13 +394,13 @@ def fit_candidate(candidate, track, start, blocks):
 
     try:
         solution = optimize.least_squares(residual, np.zeros(k), bounds=(-LOG_SPAN, LOG_SPAN),
-                                          method='trf', x_scale=1.0)
+                                          method='trf', x_scale=1.0, max_nfev=max_nfev)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as error:
         return {'name': candidate.name, 'ok': False, 'error': friction.one_line(error)}
     values = scales * np.exp(solution.x)
     rss = float(solution.fun @ solution.fun) * track.scale ** 2
     n = len(measured)
-    if not (solution.status > 0 and math.isfinite(rss) and rss > 0):
+    if not (solution.status >= (0 if max_nfev else 1) and math.isfinite(rss) and rss > 0):
         return {'name': candidate.name, 'ok': False,
                 'error': f'{candidate.name}: the fit did not converge ({solution.message})'}
     half = _intervals(solution.jac, solution.fun, blocks, k)
@@ -431,22 +439,43 @@ def identify_dynamic(result, blocks):
     """
     est, grid = result.estimate, result.grid
     position = grid.slider[est.index] - grid.stator[est.index]
-    track = Track(result.velocity_for_fit, result.fit_acceleration, est.index,
-                  result.sample_period, result.frequency, exposure=result.options.exposure,
-                  position=position)
+
+    def track_of(stop):
+        return Track(result.velocity_for_fit[:stop], result.fit_acceleration[:stop],
+                     est.index[:stop], result.sample_period, result.frequency,
+                     exposure=result.options.exposure, position=position[:stop])
+
+    blocks = np.asarray(blocks)
+    track = track_of(len(est.index))
     if not track.kept.any():
         return None
-    kept_blocks = np.asarray(blocks)[track.kept]
+    # A long record: the candidates are fitted on its first SEARCH_SAMPLES, compared on all of
+    # it at those parameters, and the chosen one refitted to all of it from there.
+    search = track if len(est.index) <= SEARCH_SAMPLES else track_of(SEARCH_SAMPLES)
+    if not search.kept.any():
+        search = track
     fitted = {}
     for candidate in CANDIDATES:  # dahl before lugre: its fit starts LuGre's
-        start = _starts(track, result.fit, result.comparison, fitted)[candidate.name]
-        fitted[candidate.name] = fit_candidate(candidate, track, start, kept_blocks)
-        if not fitted[candidate.name]['ok']:
-            fitted[candidate.name] = None
+        start = starts(search, result.fit, result.comparison, fitted)[candidate.name]
+        entry = fit_candidate(candidate, search, start,
+                              blocks[:len(search.kept)][search.kept])
+        fitted[candidate.name] = entry if entry['ok'] else None
+    if search is not track:
+        for entry in fitted.values():
+            if entry is not None:
+                residual = track.predict(entry['candidate'], entry['params']) - track.measured
+                n, k = len(residual), len(entry['params'])
+                rss = float(residual @ residual)
+                entry.update(aic=n * math.log(rss / n) + 2 * (k + 1), rmse=math.sqrt(rss / n))
     dynamic = [entry for entry in fitted.values() if entry is not None]
     if not dynamic:
         return None
     chosen = min(dynamic, key=lambda entry: entry['aic'])
+    if search is not track:
+        refit = fit_candidate(chosen['candidate'], track, chosen['params'],
+                              blocks[track.kept], max_nfev=REFIT_EVALUATIONS)
+        if refit['ok']:
+            fitted[chosen['name']] = chosen = refit
     statics = [{'name': e.name, 'kind': 'static', 'ok': True, 'error': None,
                 'aic': float(_static_aic(e, track)), 'rmse': e.rmse}
                for e in result.comparison if e.ok]
