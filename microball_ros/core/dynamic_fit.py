@@ -343,7 +343,7 @@ def starts(track, fit, comparison, fitted):
     viscous = next((e.params['c'] for e in comparison if e.ok and e.name == 'viscous'),
                    a_top / v_top)
     lengths = np.geomspace(0.003, 1.0, 9) * v_top / w  # Fc / sigma0, against the stroke
-    out = {
+    out: dict[str, tuple[list[dict], str | None]] = {
         'lagged_langevin': ([{'A': a_top, 'alpha': alpha, 'tau': tau}
                              for alpha in alphas for tau in taus], 'A'),
         'lagged_viscous': ([{'c': viscous, 'tau': tau} for tau in taus], 'c'),
@@ -454,12 +454,14 @@ def identify_dynamic(result, blocks):
     search = track if len(est.index) <= SEARCH_SAMPLES else track_of(SEARCH_SAMPLES)
     if not search.kept.any():
         search = track
-    fitted = {}
+    fitted: dict[str, dict | None] = {}
+    errors = {}
     for candidate in CANDIDATES:  # dahl before lugre: its fit starts LuGre's
         start = starts(search, result.fit, result.comparison, fitted)[candidate.name]
         entry = fit_candidate(candidate, search, start,
                               blocks[:len(search.kept)][search.kept])
         fitted[candidate.name] = entry if entry['ok'] else None
+        errors[candidate.name] = entry['error']
     if search is not track:
         for entry in fitted.values():
             if entry is not None:
@@ -479,11 +481,11 @@ def identify_dynamic(result, blocks):
     statics = [{'name': e.name, 'kind': 'static', 'ok': True, 'error': None,
                 'aic': float(_static_aic(e, track)), 'rmse': e.rmse}
                for e in result.comparison if e.ok]
-    candidates = [{'name': c.name, 'kind': 'dynamic', 'ok': fitted[c.name] is not None,
-                   'error': None if fitted[c.name] else f'{c.name}: not fitted',
-                   'aic': fitted[c.name]['aic'] if fitted[c.name] else None,
-                   'rmse': fitted[c.name]['rmse'] if fitted[c.name] else None}
-                  for c in CANDIDATES]
+    candidates = []
+    for name, entry in fitted.items():
+        candidates.append({'name': name, 'kind': 'dynamic', 'ok': entry is not None,
+                           'error': errors[name], 'aic': entry and entry['aic'],
+                           'rmse': entry and entry['rmse']})
     best_static = min(statics, key=lambda entry: entry['aic'], default=None)
     try:  # RK4 at 1 ms (friction.validate) cannot follow a lag much shorter than its step
         law = (chosen['candidate'].law(chosen['params'])
