@@ -5,7 +5,8 @@ pipeline's v_rel for the fit and the relative positions, on the uniform grid, sp
 at gaps) and the a_slid it predicts is compared with the measured one; least squares over
 bounded log parameters (scipy.optimize.least_squares). Nothing differentiates the noisy a_slid
 (the equation-error fit a + tau da/dt + L(v) = 0 this replaces used the estimated jerk: errors
-in variables, tau 37.2 [37.0, 37.4] ms for 40 ms on bench/independent lag-40ms seed 0).
+in variables; on bench/independent lag-40ms seed 0 it gave a lagged viscous law with tau 42.5
+[42.3, 42.7] ms for 40 ms; this fit: lagged Langevin, 40.01 [39.88, 40.14] ms).
 
 Between samples the relative position is a cubic Hermite curve through the measured positions
 with the v_rel estimates as slopes, evaluated SUBSTEPS times finer; along it the states advance
