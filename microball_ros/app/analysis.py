@@ -124,12 +124,19 @@ def _validation_entry(validation, result):
 
 
 def _dynamic_entry(dynamic):
+    """Return the dynamic model as JSON (core.dynamic_fit.identify_dynamic), None if none."""
     if dynamic is None:
         return None
     validation = dynamic.get('validation')
     return {'name': dynamic['name'], 'params': dynamic['params'],
             'ci95': {name: _interval(b) for name, b in dynamic['ci95'].items()},
             'aic': dynamic['aic'], 'rmse': dynamic['rmse'],
+            'fixed': dynamic.get('fixed', {}), 'at_bound': dynamic.get('at_bound', []),
+            'static_best': dynamic.get('static_best'), 'delta_aic': dynamic.get('delta_aic'),
+            'samples': dynamic.get('samples'),
+            'candidates': [{name: entry[name] for name in ('name', 'kind', 'ok', 'error', 'aic',
+                                                            'rmse')}
+                           for entry in dynamic.get('candidates', ())],
             'validation': None if validation is None else {
                 'slider_amplitude_simulated': validation.slider_amplitude_simulated,
                 'slider_amplitude_measured': validation.slider_amplitude_measured,
@@ -352,7 +359,21 @@ def summary_lines(result):
     if dynamic is not None:
         params = ', '.join(f'{name} = {value:.4g} {interval(dynamic["ci95"][name])}'
                            for name, value in dynamic['params'].items())
-        lines.append(f"dynamic model {dynamic['name']}: {params}; AIC {dynamic['aic']:.1f}")
+        line = f"dynamic model {dynamic['name']}: {params}; AIC {dynamic['aic']:.1f}"
+        if dynamic.get('delta_aic') is not None:
+            line += f" ({dynamic['delta_aic']:+.1f} against {dynamic['static_best']})"
+        lines.append(line)
+        others = [f"{entry['name']} {entry['aic']:.1f}" for entry in dynamic['candidates']
+                  if entry['ok'] and entry['name'] != dynamic['name']]
+        if others:
+            lines.append('  other models by AIC: ' + ', '.join(others))
+        check = dynamic['validation']
+        if check is not None:
+            lines.append(
+                f"  its validation (Fig. 9): slider amplitude "
+                f"{check['slider_amplitude_simulated'] * 1e3:.4f} mm simulated vs "
+                f"{check['slider_amplitude_measured'] * 1e3:.4f} mm measured, phase "
+                f"{check['phase_simulated']:.3f} vs {check['phase_measured']:.3f} rad")
     lines += comparison_failures(result)
     return lines + [f'WARNING [{code}]: {message}' for code, message in result.warnings]
 

@@ -5,17 +5,18 @@ law fitted (core.friction.compare_laws), each law's 95 % intervals widened by th
 batch-means (sandwich) variance to the independent-noise one (the residuals of estimated
 accelerations are correlated: the intervals of an independent-noise fit are too narrow or too
 wide by that ratio), the Langevin law validated by simulation (Fig. 9), a degenerate Langevin
-fit reported as its viscous limit, a first-order-lag Langevin model identified when the loop
-test finds memory, and the warnings.
+fit reported as its viscous limit, a dynamic model (core.dynamic_fit: lags, Dahl, LuGre)
+identified when the loop test finds memory, and the warnings.
 """
 
 from dataclasses import replace
 import math
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import stats
 
 from microball_ros.core import friction
+from microball_ros.core.dynamic_fit import identify_dynamic
 from microball_ros.core.errors import InputError
 
 BLOCK_PERIODS = 2.0
@@ -106,91 +107,6 @@ def _longest_measured(result, runs):
     return grid.time[a:b][seen], grid.stator[a:b][seen], grid.slider[a:b][seen]
 
 
-def _jerk(result):
-    """Return d a_slid / dt at the used samples (centred differences within each run)."""
-    est = result.estimate
-    jerk = np.gradient(est.acceleration, est.time)
-    gaps = np.flatnonzero(np.diff(est.index) != 1)
-    for k in gaps:  # one-sided at a run's ends
-        jerk[k] = (est.acceleration[k] - est.acceleration[k - 1]) / result.sample_period \
-            if k > 0 else jerk[k]
-        jerk[k + 1] = ((est.acceleration[min(k + 2, len(jerk) - 1)] - est.acceleration[k + 1])
-                       / result.sample_period)
-    return jerk
-
-
-def lagged_langevin(result, blocks):
-    """Fit a = -F, tau dF/dt + F = L(v): residual a + tau da/dt + L(v); return a dict or None."""
-    v, a = result.velocity_for_fit, result.fit_acceleration
-    jerk = _jerk(result)
-    start = result.fit.params if result.fit is not None else {'A': 1.0, 'alpha': 100.0}
-    scales = np.array([start['A'], start['alpha'], 0.01])
-
-    def residual(theta):
-        A, alpha, tau = scales * theta
-        return a + tau * jerk + friction.langevin(v, abs(A), abs(alpha))
-
-    try:
-        solution = optimize.least_squares(residual, [1.0, 1.0, 1.0], method='lm')
-    except (ValueError, ArithmeticError):
-        return None
-    if not solution.success:
-        return None
-    values = scales * solution.x
-    n, k = len(v), 3
-    rss = float(np.sum(solution.fun ** 2))
-    jacobian = solution.jac / scales
-    try:
-        covariance = np.linalg.inv(jacobian.T @ jacobian) * rss / (n - k)
-    except np.linalg.LinAlgError:
-        return None
-    # Batch means widen the Wald intervals as they widen the static laws'.
-    scores = jacobian * solution.fun[:, None]
-    per_block = np.zeros((blocks.max() + 1, k))
-    np.add.at(per_block, blocks, scores)
-    per_block -= per_block.mean(axis=0)
-    inverse = np.linalg.inv(jacobian.T @ jacobian)
-    sandwich = inverse @ (per_block.T @ per_block) @ inverse
-    variance = np.maximum(np.diag(covariance), np.diag(sandwich))
-    half = stats.t.ppf(0.975, max(blocks.max(), 1)) * np.sqrt(variance)
-    names = ('A', 'alpha', 'tau')
-    params = dict(zip(names, (abs(values[0]), abs(values[1]), values[2]), strict=True))
-    ci95 = {name: (float(params[name] - h), float(params[name] + h))
-            for name, h in zip(names, half, strict=True)}
-    aic = n * math.log(rss / n) + 2 * (k + 1)
-    # RK4 at 1 ms follows a lag of 1 ms or more; a shorter one is no model to simulate.
-    law = (friction.LaggedFriction(friction.Langevin(params['A'], params['alpha']),
-                                   params['tau']) if params['tau'] >= 1e-3 else None)
-    return {'name': 'lagged_langevin', 'params': params, 'ci95': ci95, 'aic': aic,
-            'rmse': math.sqrt(rss / n), 'law': law}
-
-
-def lagged_viscous(result, blocks):
-    """Fit tau da/dt + a = -c v by linear least squares (batch-means intervals); a dict."""
-    v, a = result.velocity_for_fit, result.fit_acceleration
-    design = np.column_stack([v, _jerk(result)])
-    coefficients, *_ = np.linalg.lstsq(design, -a, rcond=None)
-    c, tau = coefficients
-    residual = -a - design @ coefficients
-    n, k = len(v), 2
-    rss = float(residual @ residual)
-    inverse = np.linalg.inv(design.T @ design)
-    per_block = np.zeros((blocks.max() + 1, k))
-    np.add.at(per_block, blocks, design * residual[:, None])
-    per_block -= per_block.mean(axis=0)
-    variance = np.maximum(np.diag(inverse) * rss / (n - k),
-                          np.diag(inverse @ (per_block.T @ per_block) @ inverse))
-    half = stats.t.ppf(0.975, max(blocks.max(), 1)) * np.sqrt(variance)
-    params = {'c': float(c), 'tau': float(tau)}
-    ci95 = {name: (params[name] - h, params[name] + h)
-            for name, h in zip(params, half, strict=True)}
-    if not (c > 0 and tau >= 1e-3):
-        return None
-    law = friction.LaggedFriction(friction.Viscous(c), tau)
-    return {'name': 'lagged_viscous', 'params': params, 'ci95': ci95,
-            'aic': n * math.log(rss / n) + 2 * (k + 1), 'rmse': math.sqrt(rss / n), 'law': law}
-
-
 def _validate(law, result, runs):
     t, stator, slider = _longest_measured(result, runs)
     try:
@@ -268,13 +184,10 @@ def identify(result, runs, per_period):
         if message:
             warnings.append(('model-inadequate', message))
     if result.memory_verdict == 'memory' and loop.verdict == 'memory':
-        dynamic = None
-        if viscous_limit is None:
-            dynamic = lagged_langevin(replace(result, fit=fit), blocks)
-        if dynamic is None or not dynamic['ci95']['alpha'][0] > 0:
-            dynamic = lagged_viscous(result, blocks)
-        if dynamic is not None and dynamic['law'] is not None:
-            dynamic['validation'] = _validate(dynamic['law'], result, runs)
+        dynamic = identify_dynamic(replace(result, fit=fit, comparison=comparison), blocks)
+        if dynamic is not None:
+            dynamic['validation'] = (None if dynamic['law'] is None
+                                     else _validate(dynamic['law'], result, runs))
     return replace(result, fit=fit, comparison=comparison, validation=validation,
                    viscous_limit=viscous_limit, dynamic_model=dynamic, warnings=tuple(warnings))
 
