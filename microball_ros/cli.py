@@ -515,9 +515,11 @@ def build_parser():
                        help='marks darker or brighter than their plate (default: auto, '
                             'learned from the video)')
     track.add_argument('--method', choices=['auto', 'template'], default='auto',
-                       help="'auto': the mark's contrast centroid (default); 'template': a "
-                            'template learned from the video, for textured plates '
-                            '(experimental, slower)')
+                       help="'auto' (default): the mark's contrast centroid on a plain "
+                            'plate; on a textured plate (found on the first frames) the plate '
+                            "learned from the video, registered per frame; 'template': a "
+                            'template of the mark learned from the video (experimental, '
+                            'slower)')
     track.add_argument('--output', help='position CSV to write (time, positions, quality, '
                                         'sigma)')
     track.add_argument('--preview', metavar='FILE.png',
