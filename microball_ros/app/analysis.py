@@ -134,9 +134,9 @@ def _dynamic_entry(dynamic):
             'fixed': dynamic.get('fixed', {}), 'at_bound': dynamic.get('at_bound', []),
             'static_best': dynamic.get('static_best'), 'delta_aic': dynamic.get('delta_aic'),
             'samples': dynamic.get('samples'),
-            'candidates': [{name: entry[name] for name in ('name', 'kind', 'ok', 'error', 'aic',
-                                                            'rmse')}
-                           for entry in dynamic.get('candidates', ())],
+            'candidates': [{name: entry.get(name, True) for name in (
+                'name', 'kind', 'ok', 'error', 'aic', 'rmse', 'determined')}
+                for entry in dynamic.get('candidates', ())],
             'validation': None if validation is None else {
                 'slider_amplitude_simulated': validation.slider_amplitude_simulated,
                 'slider_amplitude_measured': validation.slider_amplitude_measured,
@@ -363,7 +363,9 @@ def summary_lines(result):
         if dynamic.get('delta_aic') is not None:
             line += f" ({dynamic['delta_aic']:+.1f} against {dynamic['static_best']})"
         lines.append(line)
-        others = [f"{entry['name']} {entry['aic']:.1f}" for entry in dynamic['candidates']
+        others = [f"{entry['name']} {entry['aic']:.1f}"
+                  + ('' if entry.get('determined', True) else ' (a parameter not determined)')
+                  for entry in dynamic['candidates']
                   if entry['ok'] and entry['name'] != dynamic['name']]
         if others:
             lines.append('  other models by AIC: ' + ', '.join(others))

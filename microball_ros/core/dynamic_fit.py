@@ -439,15 +439,21 @@ def _static_aic(entry, track):
     return n * math.log(float(residual @ residual) / n) + 2 * (k + 1)
 
 
+def _determined(ci95, span=1e3):
+    """Return True if every 95 % interval is finite, above zero and within ``span``-fold."""
+    return all(0 < lo and math.isfinite(hi) and hi < span * lo for lo, hi in ci95.values())
+
+
 def identify_dynamic(result, blocks):
     """Return the dynamic model of a PipelineResult with memory, a dict, or None.
 
     ``result``: the pipeline's result with its static ``fit`` and ``comparison`` set;
     ``blocks``: the batch-means block of every estimated sample (core.pipeline_fit). Every
-    candidate is fitted; the one of lowest AIC is returned as {name, params, ci95, aic, rmse,
-    law (for friction.validate), fixed, at_bound, candidates [{name, kind, ok, error, aic,
-    rmse}] (the static laws too, on the same samples), static_best, delta_aic (chosen minus
-    best static; negative: the memory is worth its parameters), samples}. None if no
+    candidate is fitted; the one of lowest AIC among those whose intervals are all bounded
+    (else among all) is returned as {name, params, ci95, aic, rmse, law (for
+    friction.validate), fixed, at_bound, candidates [{name, kind, ok, error, aic, rmse,
+    determined}] (the static laws too, on the same samples), static_best, delta_aic (chosen
+    minus best static; negative: the memory is worth its parameters), samples}. None if no
     candidate could be fitted or the record has no piece longer than the warm-up.
     """
     est, grid = result.estimate, result.grid
@@ -485,7 +491,10 @@ def identify_dynamic(result, blocks):
     dynamic = [entry for entry in fitted.values() if entry is not None]
     if not dynamic:
         return None
-    chosen = min(dynamic, key=lambda entry: entry['aic'])
+    # A model whose every interval is bounded is preferred to a better-scoring one with a
+    # parameter the data leave open (Dahl against LuGre, which nests it, on a Dahl record).
+    determined = [entry for entry in dynamic if _determined(entry['ci95'])]
+    chosen = min(determined or dynamic, key=lambda entry: entry['aic'])
     if search is not track:
         refit = fit_candidate(chosen['candidate'], track, chosen['params'],
                               blocks[track.kept], max_nfev=REFIT_EVALUATIONS)
@@ -498,7 +507,8 @@ def identify_dynamic(result, blocks):
     for name, entry in fitted.items():
         candidates.append({'name': name, 'kind': 'dynamic', 'ok': entry is not None,
                            'error': errors[name], 'aic': entry and entry['aic'],
-                           'rmse': entry and entry['rmse']})
+                           'rmse': entry and entry['rmse'],
+                           'determined': entry is not None and _determined(entry['ci95'])})
     best_static = min(statics, key=lambda entry: entry['aic'], default=None)
     try:  # RK4 at 1 ms (friction.validate) cannot follow a lag much shorter than its step
         law = (chosen['candidate'].law(chosen['params'])
