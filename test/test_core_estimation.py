@@ -302,8 +302,8 @@ def test_paper_preset_and_explicit_options_are_recorded():
     paper = three_stage(x, DT, 0.08, paper=True)
     assert paper.options == {'whole_periods': False, 'slow_band': 0.0, 'edges': 'trim',
                              'detrend': False, 'max_compensation': np.inf, 'exposure': 0.0,
-                             'noise_floor': False, 'epsilon': 0.08, 'compensate': True,
-                             'fundamental': None}
+                             'noise_floor': False, 'harmonics': False, 'epsilon': 0.08,
+                             'compensate': True, 'fundamental': None}
     assert paper.index.tolist() == list(range(1, 299))
     mixed = three_stage(x, DT, paper=True, whole_periods=True)
     assert mixed.options['whole_periods'] and mixed.options['edges'] == 'trim'
