@@ -130,23 +130,37 @@ def three_stage_options(options: Options, fit=False) -> dict:
 
 
 def _covered(x, dt, method, options, frequency):
-    """Return (index, velocity, acceleration) of x over every sample the method can estimate."""
+    """Return (index, velocity, acceleration) of x over every sample the method can estimate.
+
+    Three-stage: the estimate over the whole periods from the start (three_stage picks the
+    number of periods that best fits the sampling, at least half the window), the same from
+    the end for the samples it leaves out (the algorithm is symmetric in time), and, while a
+    stretch in the middle is still left out (both picked about half), the same from the first
+    sample left out.
+    """
     if method != 'three-stage':
         est = estimation.estimate(x, dt, method)
         return est.index, est.velocity, est.acceleration
-    forward = estimation.three_stage(x, dt, fundamental=frequency, **options)
     index = np.arange(1, len(x) - 1)
-    velocity = np.empty(len(index))
-    acceleration = np.empty(len(index))
-    velocity[forward.index - 1] = forward.velocity
-    acceleration[forward.index - 1] = forward.acceleration
-    rest = index > forward.index[-1]
-    if np.any(rest):
-        backward = estimation.three_stage(x[::-1], dt, fundamental=frequency, **options)
-        mirrored = len(x) - 1 - backward.index
-        take = np.isin(mirrored, index[rest])
-        velocity[mirrored[take] - 1] = -backward.velocity[take]
-        acceleration[mirrored[take] - 1] = backward.acceleration[take]
+    velocity = np.full(len(index), np.nan)
+    acceleration = np.full(len(index), np.nan)
+
+    def put(start, reverse):
+        """Estimate x[start:] (reversed: x[:len(x) - start] backwards); fill what is left."""
+        piece = x[start:] if not reverse else x[:len(x) - start][::-1]
+        est = estimation.three_stage(piece, dt, fundamental=frequency, **options)
+        where = start + est.index if not reverse else len(x) - 1 - start - est.index
+        sign = -1.0 if reverse else 1.0
+        empty = np.isnan(velocity[where - 1])
+        velocity[where[empty] - 1] = sign * est.velocity[empty]
+        acceleration[where[empty] - 1] = est.acceleration[empty]
+
+    put(0, False)
+    if np.isnan(velocity[-1]):
+        put(0, True)
+    while np.any(np.isnan(velocity)):
+        first = int(np.flatnonzero(np.isnan(velocity))[0])  # sample first + 1 of x
+        put(first, False)
     return index, velocity, acceleration
 
 
