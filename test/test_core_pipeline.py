@@ -169,3 +169,21 @@ def test_every_sample_of_a_run_is_estimated_when_both_passes_pick_half_of_it():
     assert np.max(np.abs(result.fit_acceleration - a_slid)) < 0.01 * np.max(np.abs(a_slid))
     viscous = next(entry for entry in result.comparison if entry.name == 'viscous')
     assert viscous.fit.params['c'] == pytest.approx(c, rel=0.01)
+
+
+@pytest.mark.parametrize('seed', [0, 2, 3])
+def test_intervals_cover_at_ten_frames_per_period(seed):
+    """15 fps, 1.5 Hz, 2.4 mm, 2 um (issue 13): the curvature of the Langevin law rests on
+    v_rel's third harmonic (0.4 % of its fundamental), under the filter's noise floor. Dropped,
+    it put A 40 to 60 % high with intervals that missed the truth in 5 of 6 seeds; kept (every
+    harmonic bin), its noise is coherent over the record and its variance is added to the
+    intervals. No warning is due here, and both intervals hold the truth without being vacuous.
+    (Seed 1 reaches only alpha max|v_rel| = 0.5 by its estimate and is warned 'degenerate'.)
+    """
+    t, stator, slider = _record(20.0, fps=15.0, frequency=1.5, amplitude=2.4e-3, seed=seed)
+    result = pipeline.analyze_positions(t, stator, slider)
+    assert [code for code, _ in result.warnings] == []
+    for name, truth in (('A', 1.2), ('alpha', 110.0)):
+        lo, hi = result.fit.ci95[name]
+        assert lo <= truth <= hi, (name, result.fit.params[name], lo, hi)
+        assert hi / lo < 3.0
