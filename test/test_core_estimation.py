@@ -569,7 +569,9 @@ def test_memory_test_phases_blocks_and_input_checks():
 
 
 def test_harmonics_keeps_a_real_harmonic_under_the_threshold():
-    """A 0.4 % third harmonic of v at 15 fps, 1.5 Hz (the Langevin slider's, issue 13): the
+    """Keep a harmonic's bin that the amplitude threshold drops.
+
+    A 0.4 % third harmonic of v at 15 fps, 1.5 Hz (the Langevin slider's, issue 13): the
     paper's 2 % threshold drops it, ``harmonics=True`` keeps its bin and the compensated
     amplitude is exact (noise-free, whole periods: to 1e-6 relative).
     """

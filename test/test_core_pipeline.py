@@ -173,7 +173,9 @@ def test_every_sample_of_a_run_is_estimated_when_both_passes_pick_half_of_it():
 
 @pytest.mark.parametrize('seed', [0, 2, 3])
 def test_intervals_cover_at_ten_frames_per_period(seed):
-    """15 fps, 1.5 Hz, 2.4 mm, 2 um (issue 13): the curvature of the Langevin law rests on
+    """Intervals hold the truth at 10 frames per period, unwarned.
+
+    15 fps, 1.5 Hz, 2.4 mm, 2 um (issue 13): the curvature of the Langevin law rests on
     v_rel's third harmonic (0.4 % of its fundamental), under the filter's noise floor. Dropped,
     it put A 40 to 60 % high with intervals that missed the truth in 5 of 6 seeds; kept (every
     harmonic bin), its noise is coherent over the record and its variance is added to the
