@@ -180,8 +180,9 @@ def _estimate_runs(grid, runs, frequency, options):
         index, velocity, _ = _covered(slider - stator, grid.dt, options.method, kinds[0],
                                       frequency)
         _, _, acceleration = _covered(slider, grid.dt, options.method, kinds[0], frequency)
-        replicas = np.zeros((NOISE_REPLICAS, len(index))) if separate else None
+        replicas = None
         if separate:
+            replicas = np.zeros((NOISE_REPLICAS, len(index)))
             _, _, fit_acceleration = _covered(slider, grid.dt, options.method, kinds[1],
                                               frequency)
             fit_kind = {**kinds[1], **FIT_VELOCITY_FILTER}
