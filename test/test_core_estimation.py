@@ -302,8 +302,8 @@ def test_paper_preset_and_explicit_options_are_recorded():
     paper = three_stage(x, DT, 0.08, paper=True)
     assert paper.options == {'whole_periods': False, 'slow_band': 0.0, 'edges': 'trim',
                              'detrend': False, 'max_compensation': np.inf, 'exposure': 0.0,
-                             'noise_floor': False, 'epsilon': 0.08, 'compensate': True,
-                             'fundamental': None}
+                             'noise_floor': False, 'harmonics': False, 'epsilon': 0.08,
+                             'compensate': True, 'fundamental': None}
     assert paper.index.tolist() == list(range(1, 299))
     mixed = three_stage(x, DT, paper=True, whole_periods=True)
     assert mixed.options['whole_periods'] and mixed.options['edges'] == 'trim'
@@ -566,3 +566,30 @@ def test_memory_test_phases_blocks_and_input_checks():
         memory_test(t[:30], v[:30], a[:30], 2.95)
     with pytest.raises(InputError, match='one length'):
         memory_test(t, v[:-1], a, 2.95)
+
+
+def test_harmonics_keeps_a_real_harmonic_under_the_threshold():
+    """Keep a harmonic's bin that the amplitude threshold drops.
+
+    A 0.4 % third harmonic of v at 15 fps, 1.5 Hz (the Langevin slider's, issue 13): the
+    paper's 2 % threshold drops it, ``harmonics=True`` keeps its bin and the compensated
+    amplitude is exact (noise-free, whole periods: to 1e-6 relative).
+    """
+    dt, f = 1 / 15, 1.5
+    t = np.arange(600) * dt
+    w = 2 * np.pi * f
+    amplitude, third = 0.5e-3, 0.4e-2 * 0.5e-3 / 3  # velocity ratio 0.4 %
+    x = amplitude * np.sin(w * t) + third * np.sin(3 * w * t)
+
+    def third_velocity(result):
+        time = result.index * dt
+        design = np.column_stack([np.cos(3 * w * time), np.sin(3 * w * time)])
+        return np.hypot(*np.linalg.lstsq(design, result.velocity, rcond=None)[0])
+
+    truth = 3 * w * third
+    plain = three_stage(x, dt, 0.02, noise_floor=False, fundamental=f)
+    kept = three_stage(x, dt, 0.02, noise_floor=False, harmonics=True, fundamental=f)
+    assert not np.any(np.isclose(plain.velocity_frequencies, 3 * f))
+    assert np.any(np.isclose(kept.velocity_frequencies, 3 * f))
+    assert third_velocity(plain) < 1e-3 * truth
+    assert third_velocity(kept) == pytest.approx(truth, rel=1e-6)

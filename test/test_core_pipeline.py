@@ -144,3 +144,48 @@ def test_near_nyquist_is_warned_and_not_called_memoryless():
     result = pipeline.analyze_positions(t, stator, slider)
     assert 'near-nyquist' in {code for code, _ in result.warnings}
     assert result.memory_verdict == 'undetermined'
+
+
+def test_every_sample_of_a_run_is_estimated_when_both_passes_pick_half_of_it():
+    """A run whose two whole-period windows leave its middle out is estimated everywhere.
+
+    253 samples at 30 fps, 2.95 Hz: from either end three_stage picks 12 whole periods (the
+    best fit to the sampling), leaving 7 samples in the middle to a third pass; they were left
+    unset once (whatever memory held: a fit-failed or a wrong 'saturated' on a gapped record).
+    Viscous friction c: the steady slider is analytic, G X sin(w t - phi), G = c / |c + i w|.
+    """
+    c, amplitude, frequency = 44.0, 1.2e-3, 2.95
+    t, stator, slider = _record(253 / 30, law=lambda v: c * v, noise=0.0)
+    assert t.size == 253
+    result = pipeline.analyze_positions(t, stator, slider)
+    w = 2 * math.pi * frequency
+    gain, lag = c / math.hypot(c, w), math.atan2(w, c)
+    time = result.estimate.time
+    v_rel = amplitude * w * (gain * np.cos(w * time - lag) - np.cos(w * time))
+    a_slid = -amplitude * w ** 2 * gain * np.sin(w * time - lag)
+    assert result.samples_used == 251
+    # Noise-free: the three-stage estimates are within 1 % of the peaks at every sample.
+    assert np.max(np.abs(result.velocity_for_fit - v_rel)) < 0.01 * np.max(np.abs(v_rel))
+    assert np.max(np.abs(result.fit_acceleration - a_slid)) < 0.01 * np.max(np.abs(a_slid))
+    viscous = next(entry for entry in result.comparison if entry.name == 'viscous')
+    assert viscous.fit.params['c'] == pytest.approx(c, rel=0.01)
+
+
+@pytest.mark.parametrize('seed', [0, 2, 3])
+def test_intervals_cover_at_ten_frames_per_period(seed):
+    """Intervals hold the truth at 10 frames per period, unwarned.
+
+    15 fps, 1.5 Hz, 2.4 mm, 2 um (issue 13): the curvature of the Langevin law rests on
+    v_rel's third harmonic (0.4 % of its fundamental), under the filter's noise floor. Dropped,
+    it put A 40 to 60 % high with intervals that missed the truth in 5 of 6 seeds; kept (every
+    harmonic bin), its noise is coherent over the record and its variance is added to the
+    intervals. No warning is due here, and both intervals hold the truth without being vacuous.
+    (Seed 1 reaches only alpha max|v_rel| = 0.5 by its estimate and is warned 'degenerate'.)
+    """
+    t, stator, slider = _record(20.0, fps=15.0, frequency=1.5, amplitude=2.4e-3, seed=seed)
+    result = pipeline.analyze_positions(t, stator, slider)
+    assert [code for code, _ in result.warnings] == []
+    for name, truth in (('A', 1.2), ('alpha', 110.0)):
+        lo, hi = result.fit.ci95[name]
+        assert lo <= truth <= hi, (name, result.fit.params[name], lo, hi)
+        assert hi / lo < 3.0

@@ -80,6 +80,14 @@ CASES = {
     'short-rod': _case(rod=5.0),
     'messy': _case(exposure=1 / 60, noise=5 * UM, drift=10 * UM, drop=0.01, jitter=1e-3,
                    speed_var=0.01),
+    # Regimes of issue 13 the set above missed (15-120 fps, 0.5-10 Hz, 0.5-10 um, alpha 20 to
+    # 3000 s/m).
+    'slow-15fps-1.5hz': _case(fps=15.0, freq=1.5, r=2.4 * MM),
+    'one-hz': _case(freq=1.0, r=3.5 * MM),
+    'low-noise': _case(noise=0.5 * UM),
+    'alpha-3000': _case(law=('langevin', {'A': 1.2, 'alpha': 3000.0})),
+    'alpha-20': _case(law=('langevin', {'A': 1.2, 'alpha': 20.0}), r=3 * MM, freq=2.0),
+    'viscous-short': _case(law=('viscous', {'c': 44.0}), duration=10.0, group='law'),
     # Other memoryless laws: the verdict is judged, not A/alpha.
     'viscous': _case(law=('viscous', {'c': 44.0}), group='law'),
     'coulomb-viscous': _case(law=('coulomb_viscous', {'Fc': 0.1, 'c': 25.0, 'v_eps': 2e-4}),

@@ -39,7 +39,9 @@ VALIDATION_TOLERANCE = (0.05, 0.05)  # relative amplitude, phase (rad)
 # the display estimate's filter (4 x floor alone) biases 10 s records (A +17 %, z -0.4 to -1.6
 # in all of 10 seeds); unfiltered v_rel biases 30 s ones the other way (A -3 to -6 %, z +0.1
 # to +1.0, its compensated noise and aliases near Nyquist); this filter: z -0.6 to +0.5.
-FIT_VELOCITY_FILTER = {'epsilon': 0.02, 'noise_floor': 3.0}
+FIT_VELOCITY_FILTER = {'epsilon': 0.02, 'noise_floor': 3.0, 'harmonics': True}
+NOISE_REPLICAS = 24  # re-estimates of the fit v_rel with fresh noise (its error's variance)
+NOISE_SEED = 20050608  # fixed: the analysis is a function of its input
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,11 @@ class PipelineResult:
     # records: fewer samples per bin), a_slid for the fit keeps them, and the Langevin fit
     # comes out biased along its A-alpha valley (10 s records: A +17 % in every seed).
     fit_velocity: object = None
+    # Replicas [replica, sample] of the fit v_rel's error from the position noise (the record
+    # re-estimated with fresh white noise of the measured level added), None if unfiltered.
+    # Why: the filter keeps the noise of a few bins only, coherent over the whole record, so
+    # the batch means of the residuals cannot see it; the fit's intervals add its variance.
+    fit_velocity_noise: object = None
 
     @property
     def velocity_for_fit(self) -> np.ndarray:
@@ -123,40 +130,69 @@ def three_stage_options(options: Options, fit=False) -> dict:
 
 
 def _covered(x, dt, method, options, frequency):
-    """Return (index, velocity, acceleration) of x over every sample the method can estimate."""
+    """Return (index, velocity, acceleration) of x over every sample the method can estimate.
+
+    Three-stage: the estimate over the whole periods from the start (three_stage picks the
+    number of periods that best fits the sampling, at least half the window), the same from
+    the end for the samples it leaves out (the algorithm is symmetric in time), and, while a
+    stretch in the middle is still left out (both picked about half), the same from the first
+    sample left out.
+    """
     if method != 'three-stage':
         est = estimation.estimate(x, dt, method)
         return est.index, est.velocity, est.acceleration
-    forward = estimation.three_stage(x, dt, fundamental=frequency, **options)
     index = np.arange(1, len(x) - 1)
-    velocity = np.empty(len(index))
-    acceleration = np.empty(len(index))
-    velocity[forward.index - 1] = forward.velocity
-    acceleration[forward.index - 1] = forward.acceleration
-    rest = index > forward.index[-1]
-    if np.any(rest):
-        backward = estimation.three_stage(x[::-1], dt, fundamental=frequency, **options)
-        mirrored = len(x) - 1 - backward.index
-        take = np.isin(mirrored, index[rest])
-        velocity[mirrored[take] - 1] = -backward.velocity[take]
-        acceleration[mirrored[take] - 1] = backward.acceleration[take]
+    velocity = np.full(len(index), np.nan)
+    acceleration = np.full(len(index), np.nan)
+
+    def put(start, reverse):
+        """Estimate x[start:] (reversed: x[:len(x) - start] backwards); fill what is left."""
+        piece = x[start:] if not reverse else x[:len(x) - start][::-1]
+        est = estimation.three_stage(piece, dt, fundamental=frequency, **options)
+        where = start + est.index if not reverse else len(x) - 1 - start - est.index
+        sign = -1.0 if reverse else 1.0
+        empty = np.isnan(velocity[where - 1])
+        velocity[where[empty] - 1] = sign * est.velocity[empty]
+        acceleration[where[empty] - 1] = est.acceleration[empty]
+
+    put(0, False)
+    if np.isnan(velocity[-1]):
+        put(0, True)
+    while np.any(np.isnan(velocity)):
+        first = int(np.flatnonzero(np.isnan(velocity))[0])  # sample first + 1 of x
+        put(first, False)
     return index, velocity, acceleration
 
 
 def _estimate_runs(grid, runs, frequency, options):
-    """Return (grid index, v_rel, a_slid, v_rel and a_slid for the fit, v_rel center, a center)."""
+    """Return the estimates of every run at its measured samples.
+
+    (grid index, v_rel, a_slid, v_rel and a_slid for the fit, center-difference v_rel and
+    a_slid, the fit v_rel's noise replicas [replica, sample] or None).
+    """
     pieces = []
     kinds = [three_stage_options(options), three_stage_options(options, fit=True)]
+    separate = options.method == 'three-stage' and options.fit_epsilon != options.epsilon
+    sigma = _relative_noise(grid, runs, frequency) if separate else 0.0
+    rng = np.random.default_rng(NOISE_SEED)
     for start, stop in runs:
         stator, slider = grid.stator[start:stop], grid.slider[start:stop]
         index, velocity, _ = _covered(slider - stator, grid.dt, options.method, kinds[0],
                                       frequency)
         _, _, acceleration = _covered(slider, grid.dt, options.method, kinds[0], frequency)
-        if options.method == 'three-stage' and options.fit_epsilon != options.epsilon:
+        replicas = None
+        if separate:
+            replicas = np.zeros((NOISE_REPLICAS, len(index)))
             _, _, fit_acceleration = _covered(slider, grid.dt, options.method, kinds[1],
                                               frequency)
-            _, fit_velocity, _ = _covered(slider - stator, grid.dt, options.method,
-                                          {**kinds[1], **FIT_VELOCITY_FILTER}, frequency)
+            fit_kind = {**kinds[1], **FIT_VELOCITY_FILTER}
+            _, fit_velocity, _ = _covered(slider - stator, grid.dt, options.method, fit_kind,
+                                          frequency)
+            for replica in replicas:
+                noise = rng.normal(0.0, sigma, stop - start) if sigma > 0 else 0.0
+                _, noisy, _ = _covered(slider - stator + noise, grid.dt, options.method,
+                                       fit_kind, frequency)
+                replica[:] = noisy - fit_velocity
         else:
             fit_acceleration, fit_velocity = acceleration, velocity
         center = estimation.center_difference(slider - stator, grid.dt)
@@ -165,10 +201,36 @@ def _estimate_runs(grid, runs, frequency, options):
         mine, theirs = np.isin(index, common), np.isin(center.index, common)
         pieces.append((start + index[mine], velocity[mine], acceleration[mine],
                        fit_velocity[mine], fit_acceleration[mine], center.velocity[theirs],
-                       center_a.acceleration[theirs]))
-    columns = [np.concatenate(parts) for parts in zip(*pieces, strict=True)]
+                       center_a.acceleration[theirs],
+                       None if replicas is None else replicas[:, mine]))
+    columns = [np.concatenate(parts) for parts in zip(*(p[:-1] for p in pieces), strict=True)]
     measured = grid.measured[columns[0]]
-    return [column[measured] for column in columns]
+    noise = (np.concatenate([p[-1] for p in pieces], axis=1)[:, measured] if separate
+             else None)
+    return [column[measured] for column in columns] + [noise]
+
+
+def _relative_noise(grid, runs, frequency):
+    """Return the rms white noise (m) of the relative position, from its spectrum off harmonics.
+
+    Over the longest run's whole periods, the bins away from every harmonic of the stator and
+    above the slow band hold noise alone: for white noise of variance s^2 each |X_k|^2 is
+    exponential with mean n s^2, so s^2 = median / (n ln 2). Aliased harmonics and leakage are
+    a few bins, which the median ignores.
+    """
+    start, stop = max(runs, key=lambda r: r[1] - r[0])
+    x = grid.slider[start:stop] - grid.stator[start:stop]
+    cycles = frequency * grid.dt
+    periods = math.floor(len(x) * cycles)
+    length = min(len(x), int(round(periods / cycles))) if periods >= 1 else len(x)
+    x = x[:length]
+    x = x - np.polyval(np.polyfit(np.arange(length), x, 1), np.arange(length))
+    power = np.abs(np.fft.rfft(x)) ** 2
+    harmonic = np.arange(len(power)) / (length * cycles)
+    off = (np.abs(harmonic - np.round(harmonic)) * length * cycles > 2.5) & (harmonic > 1.0)
+    if np.count_nonzero(off) < 8:
+        return 0.0
+    return float(math.sqrt(np.median(power[off]) / (length * math.log(2))))
 
 
 def _trim_unsteady_ends(grid, runs, frequency):
@@ -238,8 +300,8 @@ def analyze_positions(time, stator, slider, valid=None, options: Options | None 
         raise InputError(f'{source}: too short: {periods:.1f} stator periods of '
                          f'{frequency:.3g} Hz in usable stretches, need at least '
                          f'{MIN_PERIODS}')
-    used, velocity, acceleration, fit_velocity, fit_acceleration, center_v, center_a = \
-        _estimate_runs(grid, runs, frequency, options)
+    used, velocity, acceleration, fit_velocity, fit_acceleration, center_v, center_a, \
+        velocity_noise = _estimate_runs(grid, runs, frequency, options)
     est = estimation.Estimate(time=grid.time[used], velocity=velocity,
                               acceleration=acceleration, index=used, method=options.method,
                               sample_period=grid.dt, options=three_stage_options(options))
@@ -259,7 +321,8 @@ def analyze_positions(time, stator, slider, valid=None, options: Options | None 
         options=options, grid=grid, sample_period=grid.dt, frequency=float(frequency),
         used=used, estimate=est, fit_acceleration=fit_acceleration, phase_test=phase,
         loop=loop, fit=None, comparison=(), validation=None, viscous_limit=None,
-        dynamic_model=None, runs=tuple(runs), fit_velocity=fit_velocity), runs, per_period)
+        dynamic_model=None, runs=tuple(runs), fit_velocity=fit_velocity,
+        fit_velocity_noise=velocity_noise), runs, per_period)
 
 
 def analyze_windows(windows, options: Options | None = None, source='windows'):

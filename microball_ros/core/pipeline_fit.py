@@ -26,8 +26,13 @@ def _blocks(time, frequency):
     return np.floor((time - time[0]) * frequency / BLOCK_PERIODS).astype(int)
 
 
-def variance_ratio(law, v, a, blocks):
-    """Return per fitted parameter the batch-means variance over the independent-noise one."""
+def variance_ratio(law, v, a, blocks, velocity_noise=None):
+    """Return per fitted parameter the batch-means variance over the independent-noise one.
+
+    ``velocity_noise``: optional replicas [replica, sample] of the error of v; the variance
+    they cause (linearised: d theta = -(J^T J)^-1 J^T (dr/dv dv)) is added to the batch
+    means', which cannot see an error coherent over the whole record.
+    """
     residual = law.acceleration(v) - a
     gradient = np.column_stack(law.force_gradient(v))
     jacobian = -gradient
@@ -43,8 +48,14 @@ def variance_ratio(law, v, a, blocks):
     per_block -= per_block.mean(axis=0)
     sandwich = inverse @ (per_block.T @ per_block) @ inverse * count / max(count - 1, 1)
     iid = inverse * np.sum(residual ** 2) / max(len(v) - gradient.shape[1], 1)
+    extra = np.zeros(gradient.shape[1])
+    if velocity_noise is not None and len(velocity_noise):
+        step = 1e-6 * float(np.max(np.abs(v)))
+        slope = (law.acceleration(v + step) - law.acceleration(v - step)) / (2 * step)
+        shifts = -inverse @ (jacobian.T @ (slope[:, None] * np.asarray(velocity_noise).T))
+        extra = np.mean(shifts ** 2, axis=1)
     with np.errstate(invalid='ignore', divide='ignore'):
-        ratio = np.diag(sandwich) / np.diag(iid)
+        ratio = (np.diag(sandwich) + extra) / np.diag(iid)
     return np.where(np.isfinite(ratio), ratio, 1.0)
 
 
@@ -65,7 +76,7 @@ def widen(fit, ratio, blocks_count):
     return replace(fit, ci95=ci95)
 
 
-def _viscous_limit(fit, v, a, blocks, comparison=()):
+def _viscous_limit(fit, v, a, blocks, comparison=(), velocity_noise=None):
     """Return (c, 95 % interval) of the viscous limit c = A alpha / 3, batch-means widened.
 
     The viscous law's own fit (linear in c) where the comparison has it: in the linear regime
@@ -82,19 +93,20 @@ def _viscous_limit(fit, v, a, blocks, comparison=()):
     A, alpha = fit.params['A'], fit.params['alpha']
     c = A * alpha / 3
     gradient = np.array([alpha / 3, A / 3])
-    ratio = float(np.max(np.maximum(variance_ratio(fit.law, v, a, blocks), 1.0)))
+    ratio = float(np.max(np.maximum(variance_ratio(fit.law, v, a, blocks, velocity_noise),
+                                    1.0)))
     variance = float(gradient @ fit.covariance @ gradient) * ratio
     count = int(blocks.max()) + 1
     half = stats.t.ppf(0.975, max(count - 1, 1)) * math.sqrt(max(variance, 0.0))
     return c, (c - half, c + half)
 
 
-def _honest(comparison, v, a, blocks):
+def _honest(comparison, v, a, blocks, velocity_noise=None):
     out = []
     count = int(blocks.max()) + 1
     for entry in comparison:
         if entry.ok:
-            ratio = variance_ratio(entry.fit.law, v, a, blocks)
+            ratio = variance_ratio(entry.fit.law, v, a, blocks, velocity_noise)
             entry = replace(entry, fit=widen(entry.fit, ratio, count))
         out.append(entry)
     return tuple(out)
@@ -147,7 +159,7 @@ def identify(result, runs, per_period):
     # fitted for comparison get Wald intervals (the profiles were most of the time of a long
     # record: 2.2 of 3.9 s for an hour at 30 fps).
     comparison = _honest(tuple(friction.compare_laws(v, a, profile=('langevin',))), v, a,
-                         blocks)
+                         blocks, result.fit_velocity_noise)
     langevin = next(entry for entry in comparison if entry.name == 'langevin')
     fit = langevin.fit if langevin.ok else None
     if per_period < 7.0:
@@ -174,7 +186,8 @@ def identify(result, runs, per_period):
                              'Langevin parameters are biased'))
         lo, hi = fit.ci95['alpha']
         if reach <= SATURATION_REACH and (not (lo > 0 and math.isfinite(hi)) or reach < 0.3):
-            viscous_limit = _viscous_limit(fit, v, a, blocks, comparison)
+            viscous_limit = _viscous_limit(fit, v, a, blocks, comparison,
+                                           result.fit_velocity_noise)
             c = viscous_limit[0]
             warnings.append(('degenerate', f'the data do not reach the saturation of the '
                              f'Langevin law (alpha max|v_rel| = {reach:.2g}): only its viscous '
