@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.profile import (
@@ -50,6 +51,7 @@ class CentroidMarkTracker:
         self._baseline = Baseline(self.roi[2], self.config.baseline_degree)
         self._areas: deque[float] = deque(maxlen=int(self.config.area_history))
         self._previous: float | None = None
+        self._background = StaticBackground()
         self.polarity: str | None = None if self.config.polarity == 'auto' else (
             self.config.polarity)
 
@@ -61,7 +63,23 @@ class CentroidMarkTracker:
             self.polarity = None
 
     def prime(self, frames) -> None:
-        """Nothing to learn beyond the polarity: fix it from the first frames, then reset."""
+        """Learn the polarity and the static background from the first frames, then reset.
+
+        The background (core.tracking.background) is learned when ``static_background`` is
+        set: a first one from the plain temporal median locates the mark in every priming
+        frame, then the frames are averaged per pixel outside the mark's footprint.
+        """
+        frames = list(frames)
+        self._background.clear()
+        regions = None
+        if self.config.static_background:
+            regions = np.stack([roi_region(frame, self.roi, self.name) for frame in frames]
+                               ) if frames else None
+            if regions is not None:
+                self._background.inverse = StaticBackground.provisional(
+                    regions.astype(np.float32))
+                if self._background.inverse is None:
+                    regions = None
         if self.polarity is None:
             for frame in frames:
                 self.measure(frame)
@@ -70,11 +88,33 @@ class CentroidMarkTracker:
         polarity = self.polarity
         self.reset()
         self.polarity = polarity
+        if regions is not None:
+            self._background.learn(regions, self._footprints(frames))
+            self.reset()
+            self.polarity = polarity
+
+    def _footprints(self, frames) -> np.ndarray:
+        """Return the columns the mark covers in each frame (all of them where not found)."""
+        x, _, w, _ = self.roi
+        covered = np.ones((len(frames), w), dtype=bool)
+        guard = int(self.config.pad_px) + int(self.config.smoothing_px) + 2
+        for i, frame in enumerate(frames):
+            found = self.measure(frame)
+            if found.valid and math.isfinite(found.extent_px):
+                center = found.position_px - x
+                half = found.extent_px / 2.0 + guard
+                covered[i] = False
+                covered[i, max(int(center - half), 0):max(int(math.ceil(center + half)) + 1,
+                                                           0)] = True
+        return covered
 
     @property
     def learned(self) -> dict:
-        """Return what was learned: the polarity (or nothing)."""
-        return {'polarity': self.polarity} if self.polarity else {}
+        """Return what was learned: the polarity and the static background's gain, if any."""
+        learned: dict = {'polarity': self.polarity} if self.polarity else {}
+        if self._background.inverse is not None:
+            learned['static_background_gain'] = self._background.gain
+        return learned
 
     def _invalid(self, reason, contrast=float('nan')):
         self._previous = None
@@ -133,6 +173,10 @@ class CentroidMarkTracker:
                       else default_saturation(region.dtype))
         if saturation is not None and profile.max() >= saturation:
             return self._invalid('saturated')
+        raw = region
+        if self._background.inverse is not None:
+            region = self._background.apply(region)
+            profile = column_profile(region)
         pad = int(cfg.pad_px)
         guard = pad + int(cfg.smoothing_px)
         baseline = self._baseline.envelope(profile, polarity)
@@ -172,7 +216,7 @@ class CentroidMarkTracker:
         if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
         if saturation is not None and polarity == 'dark':
-            window = region[:, max(first - guard, 0):last + guard + 1]
+            window = raw[:, max(first - guard, 0):last + guard + 1]
             if np.count_nonzero(window >= saturation) > cfg.max_saturated_fraction * window.size:
                 return self._invalid('saturated', contrast=peak)
         centroid, sigma_centroid, area = deficit_centroid(deficit, first, last, noise)

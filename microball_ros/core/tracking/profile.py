@@ -21,7 +21,7 @@ MAD_TO_SIGMA = 1.4826
 
 def column_profile(region: np.ndarray) -> np.ndarray:
     """Return the mean of the ROI's rows (float64, one value per column)."""
-    if region.dtype == np.uint8:
+    if region.dtype in (np.uint8, np.float32):
         return cv2.reduce(region, 0, cv2.REDUCE_AVG, dtype=cv2.CV_64F)[0]
     return region.astype(np.float64).mean(axis=0)
 

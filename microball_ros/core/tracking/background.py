@@ -1,0 +1,134 @@
+"""A static background per ROI: a pattern fixed in the image, learned and divided out.
+
+Owns ``StaticBackground``. A pattern that does not move with the plates (a cover glass or
+window between the plates and the camera, dust on it, scratches, the sensor's own pattern)
+is the same in every frame, while the mark moves: each pixel is uncovered most of the time.
+From the priming frames the background is the per-pixel mean of the frames in which the
+mark's footprint (its located extent plus a guard, per frame) does not cover the pixel, with
+outliers (a passing particle, a mark located wrongly) clipped at four sigmas once. Its fine part,
+the background over its own smooth version (a Gaussian of ``SMOOTH_PX``, so illumination and
+the plate's level stay with the per-frame baseline, which also takes flicker and drift), is
+the static texture; every later ROI is divided by it before its profile is built.
+
+Only when it helps: the texture is shrunk towards 1 by the Wiener factor ``1 - n / v`` (``v``
+its variance over the ROI, ``n`` the part of it that is the noise of the per-pixel means) and
+not used at all below ``MIN_GAIN``, so a plain plate is left as it was (the mean of noisy
+frames would add fixed-pattern noise). Pixels the mark covered in too many priming frames
+(a mark that hardly moves) get no correction (1). Learned once; not updated while tracking.
+"""
+
+import math
+
+import cv2
+import numpy as np
+
+MAD_TO_SIGMA = 1.4826
+SMOOTH_PX = 6.0
+MIN_SAMPLES = 8
+MIN_FRAMES = 12
+MIN_GAIN = 0.5
+PROVISIONAL_FRAMES = 15
+CLIP_SIGMA = 4.0
+
+
+def _smooth_known(image: np.ndarray, known: np.ndarray, sigma: float) -> np.ndarray:
+    """Return the Gaussian smoothing of ``image`` over the ``known`` pixels only."""
+    weight = cv2.GaussianBlur(known.astype(np.float32), (0, 0), sigma,
+                              borderType=cv2.BORDER_REFLECT)
+    value = cv2.GaussianBlur(np.where(known, image, 0).astype(np.float32), (0, 0), sigma,
+                             borderType=cv2.BORDER_REFLECT)
+    return value / np.maximum(weight, 1e-6)
+
+
+class StaticBackground:
+    """The static texture of one ROI (h x w), learned from priming frames, or none.
+
+    ``inverse`` is the per-pixel factor (float32) that removes it, None when the ROI has no
+    texture worth removing; ``gain`` the Wiener factor used (0 when none).
+    """
+
+    def __init__(self) -> None:
+        """Start with no texture (nothing is removed)."""
+        self.inverse: np.ndarray | None = None
+        self.gain = 0.0
+
+    def clear(self) -> None:
+        """Forget the texture."""
+        self.inverse = None
+        self.gain = 0.0
+
+    def apply(self, region: np.ndarray) -> np.ndarray:
+        """Return the ROI with the static texture divided out (float32), or as it was."""
+        if self.inverse is None or self.inverse.shape != region.shape:
+            return region
+        return region.astype(np.float32) * self.inverse
+
+    @staticmethod
+    def provisional(regions: np.ndarray) -> np.ndarray | None:
+        """Return a first texture factor from a plain temporal median, to find the marks.
+
+        The median of at most ``PROVISIONAL_FRAMES`` frames spread over ``regions``; the
+        mark's passes leak into it where it dwells, so it only serves to locate the mark in
+        the priming frames (None with too few frames).
+        """
+        n = regions.shape[0]
+        if n < MIN_FRAMES:
+            return None
+        step = max(int(math.ceil(n / PROVISIONAL_FRAMES)), 1)
+        median = np.median(regions[::step], axis=0).astype(np.float32)
+        known = median > 0
+        texture = median / np.maximum(_smooth_known(median, known, SMOOTH_PX), 1e-6)
+        return np.where(known, 1.0 / np.maximum(texture, 1e-3), 1.0).astype(np.float32)
+
+    def learn(self, regions: np.ndarray, covered: np.ndarray) -> None:
+        """Learn the texture from ``regions`` (n x h x w) and the mark's ``covered`` columns.
+
+        ``covered`` (n x w, bool) marks the columns the mark's footprint covers in each frame;
+        a frame where the mark was not located should be covered entirely. Sets ``inverse``
+        and ``gain`` (None and 0 when the texture does not stand out from the noise).
+        """
+        self.clear()
+        if regions.shape[0] < MIN_FRAMES:
+            return
+        regions = regions.astype(np.float32, copy=False)
+        use = np.broadcast_to(~covered[:, None, :], regions.shape)
+        mean, variance, count = _masked_moments(regions, use)
+        # One pass of clipping: a passing particle or a mark located wrongly is not averaged.
+        sigma = np.sqrt(variance)
+        known = count >= MIN_SAMPLES
+        if np.count_nonzero(known) < 0.25 * known.size:
+            return
+        floor = float(np.median(sigma[known]))
+        limit = CLIP_SIGMA * np.maximum(sigma, max(floor, 0.5))
+        use = use & (np.abs(regions - mean) <= limit)
+        mean, variance, count = _masked_moments(regions, use)
+        known = count >= MIN_SAMPLES
+        if np.count_nonzero(known) < 0.25 * known.size:
+            return
+        smooth = _smooth_known(mean, known, SMOOTH_PX).astype(np.float64)
+        if np.any(smooth[known] <= 0):
+            return
+        texture = mean / np.maximum(smooth, 1e-9) - 1.0
+        # The part of the texture's variance that is the noise of the per-pixel means.
+        noise = float(np.mean(variance[known] / count[known] / smooth[known] ** 2))
+        total_variance = float(np.mean(texture[known] ** 2))
+        if not (math.isfinite(total_variance) and total_variance > 0):
+            return
+        gain = max(0.0, 1.0 - noise / total_variance)
+        if gain < MIN_GAIN:
+            return
+        factor = np.where(known, 1.0 + gain * texture, 1.0)
+        self.inverse = (1.0 / np.maximum(factor, 1e-3)).astype(np.float32)
+        self.gain = gain
+
+
+def _masked_moments(regions: np.ndarray,
+                    use: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the per-pixel mean, variance and count of ``regions`` where ``use``."""
+    count = use.sum(axis=0)
+    values = np.where(use, regions, 0.0)
+    total = values.sum(axis=0, dtype=np.float64)
+    squares = np.einsum('ijk,ijk->jk', values, values, dtype=np.float64)
+    mean = total / np.maximum(count, 1)
+    variance = np.maximum(squares - count * mean ** 2, 0.0) / np.maximum(count - 1, 1)
+    return mean, variance, count
