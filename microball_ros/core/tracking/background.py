@@ -5,16 +5,18 @@ window between the plates and the camera, dust on it, scratches, the sensor's ow
 is the same in every frame, while the mark moves: each pixel is uncovered most of the time.
 From the priming frames the background is the per-pixel mean of the frames in which the
 mark's footprint (its located extent plus a guard, per frame) does not cover the pixel, with
-outliers (a passing particle, a mark located wrongly) clipped at four sigmas once. Its fine part,
-the background over its own smooth version (a Gaussian of ``SMOOTH_PX``, so illumination and
-the plate's level stay with the per-frame baseline, which also takes flicker and drift), is
-the static texture; every later ROI is divided by it before its profile is built.
+outliers (a passing particle, a mark located wrongly) clipped at four sigmas once. Every later
+ROI is divided by it, normalised to a mean of 1 (a flat field), before its profile is built:
+any static pattern left at the mark's scale would bias the position. Flicker and drift, which
+change the level of the whole ROI, stay with the per-frame baseline.
 
-Only when it helps: the texture is shrunk towards 1 by the Wiener factor ``1 - n / v`` (``v``
-its variance over the ROI, ``n`` the part of it that is the noise of the per-pixel means) and
-not used at all below ``MIN_GAIN``, so a plain plate is left as it was (the mean of noisy
-frames would add fixed-pattern noise). Pixels the mark covered in too many priming frames
-(a mark that hardly moves) get no correction (1). Learned once; not updated while tracking.
+Only when it helps: the fine part of the background (over its Gaussian smoothing of
+``SMOOTH_PX``) is shrunk towards 1 by the Wiener factor ``1 - n / v`` (``v`` its variance over
+the ROI, ``n`` the part of it that is the noise of the per-pixel means), and no background is
+used at all when that factor is below ``MIN_GAIN``, so a plain plate is left as it was (the
+mean of noisy frames would add fixed-pattern noise). Pixels the mark covered in too many
+priming frames (a mark that hardly moves) get no fine correction. Learned once; not updated
+while tracking.
 """
 
 import math
@@ -31,13 +33,14 @@ PROVISIONAL_FRAMES = 15
 CLIP_SIGMA = 4.0
 
 
-def _smooth_known(image: np.ndarray, known: np.ndarray, sigma: float) -> np.ndarray:
-    """Return the Gaussian smoothing of ``image`` over the ``known`` pixels only."""
+def _smooth_known(image: np.ndarray, known: np.ndarray,
+                  sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return the Gaussian smoothing of ``image`` over the ``known`` pixels, and its weight."""
     weight = cv2.GaussianBlur(known.astype(np.float32), (0, 0), sigma,
                               borderType=cv2.BORDER_REFLECT)
     value = cv2.GaussianBlur(np.where(known, image, 0).astype(np.float32), (0, 0), sigma,
                              borderType=cv2.BORDER_REFLECT)
-    return value / np.maximum(weight, 1e-6)
+    return value / np.maximum(weight, 1e-6), weight
 
 
 class StaticBackground:
@@ -77,8 +80,10 @@ class StaticBackground:
         step = max(int(math.ceil(n / PROVISIONAL_FRAMES)), 1)
         median = np.median(regions[::step], axis=0).astype(np.float32)
         known = median > 0
-        texture = median / np.maximum(_smooth_known(median, known, SMOOTH_PX), 1e-6)
-        return np.where(known, 1.0 / np.maximum(texture, 1e-3), 1.0).astype(np.float32)
+        if not np.any(known):
+            return None
+        return np.where(known, float(median[known].mean()) / np.maximum(median, 1e-3),
+                        1.0).astype(np.float32)
 
     def learn(self, regions: np.ndarray, covered: np.ndarray) -> None:
         """Learn the texture from ``regions`` (n x h x w) and the mark's ``covered`` columns.
@@ -105,11 +110,12 @@ class StaticBackground:
         known = count >= MIN_SAMPLES
         if np.count_nonzero(known) < 0.25 * known.size:
             return
-        smooth = _smooth_known(mean, known, SMOOTH_PX).astype(np.float64)
+        smooth, weight = _smooth_known(mean, known, SMOOTH_PX)
+        smooth = smooth.astype(np.float64)
         if np.any(smooth[known] <= 0):
             return
         texture = mean / np.maximum(smooth, 1e-9) - 1.0
-        # The part of the texture's variance that is the noise of the per-pixel means.
+        # The part of the fine texture's variance that is the noise of the per-pixel means.
         noise = float(np.mean(variance[known] / count[known] / smooth[known] ** 2))
         total_variance = float(np.mean(texture[known] ** 2))
         if not (math.isfinite(total_variance) and total_variance > 0):
@@ -117,7 +123,10 @@ class StaticBackground:
         gain = max(0.0, 1.0 - noise / total_variance)
         if gain < MIN_GAIN:
             return
-        factor = np.where(known, 1.0 + gain * texture, 1.0)
+        # The whole static pattern goes (a flat field): its smooth part, nearly noiseless, as
+        # it is; its fine part shrunk by the gain; no correction far from any known pixel.
+        smooth = np.where(weight > 0.05, smooth / float(np.mean(smooth[known])), 1.0)
+        factor = smooth * np.where(known, 1.0 + gain * texture, 1.0)
         self.inverse = (1.0 / np.maximum(factor, 1e-3)).astype(np.float32)
         self.gain = gain
 
