@@ -30,6 +30,7 @@ MIN_SAMPLES = 8
 MIN_FRAMES = 12
 MIN_GAIN = 0.5
 PROVISIONAL_FRAMES = 15
+RESIDUAL_FRAMES = 20
 CLIP_SIGMA = 4.0
 
 
@@ -47,55 +48,99 @@ class StaticBackground:
     """The static texture of one ROI (h x w), learned from priming frames, or none.
 
     ``inverse`` is the per-pixel factor (float32) that removes it, None when the ROI has no
-    texture worth removing; ``gain`` the Wiener factor used (0 when none).
+    texture worth removing; ``added``, when the fine pattern is light added rather than
+    transmitted, what is then subtracted (times the frame's level over ``reference``);
+    ``gain`` the Wiener factor used (0 when none).
     """
 
     def __init__(self) -> None:
         """Start with no texture (nothing is removed)."""
         self.inverse: np.ndarray | None = None
+        self.added: np.ndarray | None = None
+        self.reference = 1.0
         self.gain = 0.0
 
     def clear(self) -> None:
         """Forget the texture."""
         self.inverse = None
+        self.added = None
+        self.reference = 1.0
         self.gain = 0.0
 
+    @property
+    def kind(self) -> str:
+        """Return how the pattern is removed: 'none', 'divided' or 'subtracted'."""
+        if self.inverse is None:
+            return 'none'
+        return 'divided' if self.added is None else 'subtracted'
+
     def apply(self, region: np.ndarray) -> np.ndarray:
-        """Return the ROI with the static texture divided out (float32), or as it was."""
+        """Return the ROI with the static pattern removed (float32), or as it was."""
         if self.inverse is None or self.inverse.shape != region.shape:
             return region
-        return region.astype(np.float32) * self.inverse
+        corrected = region.astype(np.float32) * self.inverse
+        if self.added is None:
+            return corrected
+        level = float(cv2.mean(corrected)[0])
+        return corrected - np.float32(level / self.reference) * self.added
 
     @staticmethod
     def provisional(regions: np.ndarray) -> np.ndarray | None:
-        """Return a first texture factor from a plain temporal median, to find the marks.
+        """Return a first background factor from a plain temporal median, to find the marks.
 
         The median of at most ``PROVISIONAL_FRAMES`` frames spread over ``regions``; the
         mark's passes leak into it where it dwells, so it only serves to locate the mark in
-        the priming frames (None with too few frames).
+        the priming frames. None with too few frames, or when its fine part does not exceed
+        the noise of such a median by half the noise of the final mean (the mark's leaks
+        only add to it), so that a plain plate costs little.
         """
         n = regions.shape[0]
         if n < MIN_FRAMES:
             return None
         step = max(int(math.ceil(n / PROVISIONAL_FRAMES)), 1)
-        median = np.median(regions[::step], axis=0).astype(np.float32)
+        sample = regions[::step].astype(np.float32)
+        median = np.median(sample, axis=0)
         known = median > 0
         if not np.any(known):
             return None
-        return np.where(known, float(median[known].mean()) / np.maximum(median, 1e-3),
-                        1.0).astype(np.float32)
+        level = float(median[known].mean())
+        smooth, _ = _smooth_known(median, known, SMOOTH_PX)
+        fine = float(np.mean((median[known] / np.maximum(smooth[known], 1e-6) - 1.0) ** 2))
+        # Pixel noise from frame-to-frame differences (robust: the moving mark is a minority).
+        difference = sample[1:] - sample[:-1]
+        sigma = MAD_TO_SIGMA * float(np.median(np.abs(difference))) / math.sqrt(2.0)
+        noise = math.pi / 2.0 * (sigma / level) ** 2 / sample.shape[0]
+        # What the mean of all n frames would show of a texture at half the final gate.
+        if not fine > noise + 0.5 * (sigma / level) ** 2 / n:
+            return None
+        return np.where(known, level / np.maximum(median, 1e-3), 1.0).astype(np.float32)
 
-    def learn(self, regions: np.ndarray, covered: np.ndarray) -> None:
+    def learn(self, regions: np.ndarray, covered: np.ndarray,
+              first: np.ndarray | None = None) -> None:
         """Learn the texture from ``regions`` (n x h x w) and the mark's ``covered`` columns.
 
         ``covered`` (n x w, bool) marks the columns the mark's footprint covers in each frame;
-        a frame where the mark was not located should be covered entirely. Sets ``inverse``
-        and ``gain`` (None and 0 when the texture does not stand out from the noise).
+        a frame where the mark was not located should be covered entirely. ``first``: the
+        ``provisional`` factor, against which each frame's gain (flicker) is measured. Sets
+        ``inverse`` and ``gain`` (None and 0 when the texture does not stand out from the
+        noise).
         """
         self.clear()
         if regions.shape[0] < MIN_FRAMES:
             return
-        regions = regions.astype(np.float32, copy=False)
+        regions = regions.astype(np.float32)
+        # Flicker: each frame brought to the common level, its gain measured against the first
+        # background over the columns the mark leaves.
+        free = (~covered).astype(np.float32)
+        width = free.sum(axis=1)
+        if np.count_nonzero(width) < MIN_FRAMES:
+            return
+        flat = regions if first is None else regions * first
+        levels = np.einsum('ijk,ik->i', flat, free) / (np.maximum(width, 1) * regions.shape[1])
+        seen = (width > 0) & (levels > 0)
+        target = float(levels[seen].mean())
+        regions *= np.where(seen, target / np.maximum(levels, 1e-9),
+                            1.0).astype(np.float32)[:, None, None]
         use = np.broadcast_to(~covered[:, None, :], regions.shape)
         mean, variance, count = _masked_moments(regions, use)
         # One pass of clipping: a passing particle or a mark located wrongly is not averaged.
@@ -125,10 +170,39 @@ class StaticBackground:
             return
         # The whole static pattern goes (a flat field): its smooth part, nearly noiseless, as
         # it is; its fine part shrunk by the gain; no correction far from any known pixel.
-        smooth = np.where(weight > 0.05, smooth / float(np.mean(smooth[known])), 1.0)
-        factor = smooth * np.where(known, 1.0 + gain * texture, 1.0)
-        self.inverse = (1.0 / np.maximum(factor, 1e-3)).astype(np.float32)
+        level = float(np.mean(smooth[known]))
+        flat = np.where(weight > 0.05, smooth / level, 1.0)
+        fine = np.where(known, gain * texture, 0.0)
+        inverse = (1.0 / np.maximum(flat * (1.0 + fine), 1e-3)).astype(np.float32)
+        # The fine part as light added (scratches, glare) rather than a transmission: in the
+        # flat field's units, scaled by each frame's gain. Whichever leaves less fine
+        # structure on the mark in the priming frames is kept.
+        flat_inverse = (1.0 / np.maximum(flat, 1e-3)).astype(np.float32)
+        added = (level * fine).astype(np.float32)
+        reference = float(np.mean(regions * flat_inverse))
+        if _residual(regions, covered, added, flat_inverse, reference) < _residual(
+                regions, covered, None, inverse, reference):
+            self.inverse, self.added, self.reference = flat_inverse, added, reference
+        else:
+            self.inverse = inverse
         self.gain = gain
+
+
+def _residual(regions: np.ndarray, covered: np.ndarray, added: np.ndarray | None,
+              inverse: np.ndarray, reference: float) -> float:
+    """Return the fine structure (energy above a 1 px Gaussian) left on the mark's columns."""
+    located = np.flatnonzero(~covered.all(axis=1))
+    energy = 0.0
+    for i in located[::max(located.size // RESIDUAL_FRAMES, 1)]:
+        columns = covered[i]
+        corrected = regions[i][:, columns] * inverse[:, columns]
+        if added is not None:
+            corrected = corrected - float(np.mean(regions[i] * inverse)) / reference * added[
+                :, columns]
+        fine = corrected - cv2.GaussianBlur(corrected, (0, 0), 1.0,
+                                            borderType=cv2.BORDER_REFLECT)
+        energy += float(np.sum(fine.astype(np.float64) ** 2))
+    return energy
 
 
 def _masked_moments(regions: np.ndarray,

@@ -89,7 +89,8 @@ class CentroidMarkTracker:
         self.reset()
         self.polarity = polarity
         if regions is not None:
-            self._background.learn(regions, self._footprints(frames))
+            first = self._background.inverse
+            self._background.learn(regions, self._footprints(frames), first)
             self.reset()
             self.polarity = polarity
 
@@ -113,6 +114,7 @@ class CentroidMarkTracker:
         """Return what was learned: the polarity and the static background's gain, if any."""
         learned: dict = {'polarity': self.polarity} if self.polarity else {}
         if self._background.inverse is not None:
+            learned['static_background'] = self._background.kind
             learned['static_background_gain'] = self._background.gain
         return learned
 
