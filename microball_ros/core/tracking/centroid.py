@@ -1,12 +1,16 @@
 """One mark in one ROI by its deficit profile (the default method): stages, checks, quality.
 
-Owns CentroidMarkTracker. Per frame it builds the
-profile and baseline (core.tracking.profile), locates the dip (core.tracking.search), checks
-it (signal-to-noise, the mark clear of the ROI edges, no saturation, an integrated deficit
-consistent with recent frames) and fits its position (core.tracking.subpixel). A failed check
-gives NaN and a quality below ``min_quality``: positions are never invented. Its state, all
-from earlier frames in order: the previous position (to tell a still mark from a moving one)
-and the recent integrated deficits (to recognise a partly hidden mark).
+Owns CentroidMarkTracker. Per frame it removes the static background learned on the priming
+frames (core.tracking.background, if any), builds the profile and baseline
+(core.tracking.profile), locates the dip (core.tracking.search), checks it (signal-to-noise,
+the mark clear of the ROI edges, no saturation, row weights like the mark's own, an integrated
+deficit consistent with recent frames) and fits its position (core.tracking.subpixel). A
+failed check gives NaN and a quality below ``min_quality``: positions are never invented. Its
+state, all from earlier frames in order: the previous position (to tell a still mark from a
+moving one), the recent integrated deficits (to recognise a partly hidden mark) and, after
+the first ``ROW_FRAMES`` frames the mark was found in, its rows and row weights (the plates
+move along x only, so they do not change; a frame whose rows depart from them shows a mark
+partly hidden or something dark beside it).
 """
 
 from collections import deque

@@ -8,7 +8,8 @@ depth in each row, a matched filter across rows estimated from the frame itself
 the mark), which removes uneven illumination; the mark is the relative deficit
 ``1 - profile / baseline`` (dark marks) or its negative (bright ones), ``relative_deficit``.
 ``deficit_noise`` estimates the per-column noise of the deficit from the plain plate.
-Background removal and polarity detection belong here.
+Polarity detection belongs here; a static background is removed before the profile is built
+(core.tracking.background).
 """
 
 import math
