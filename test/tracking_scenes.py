@@ -129,11 +129,13 @@ class Scene:
     expected: list
 
 
-def render(spec, n_frames, seed=0, covers=(), keep_expected=False):
+def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=()):
     """Render ``n_frames`` frames; ``covers`` = [(plate, first, last)] frames hiding a mark.
 
     A cover paints the plate's own level (times the illumination) over the mark's whole
     band around its position, as a particle or a shadow would, so nothing of it is seen.
+    ``discs`` = [(plate, first, last, dx, dy, radius, level)]: a disc of ``level`` DN (a
+    ball) drawn at (dx, dy) px from the mark's exposure-mean centre, over the mark.
     """
     rng = np.random.default_rng(seed)
     cols = np.arange(spec.width, dtype=float)
@@ -175,6 +177,13 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False):
                     c = int(round(truth[name][n]))
                     left, right = max(c - 60, 0), min(c + 60, spec.width)
                     scene[top:bottom, left:right] = plate.level
+            for disc_plate, first, last, dx, dy, radius, level in discs:
+                if disc_plate == name and first <= n <= last:
+                    cx = truth[name][n] + dx
+                    cy = (plate.band[0] + plate.band[1]) / 2.0 + dy
+                    inside = np.clip(radius + 0.5 - np.hypot(cols[None, :] - cx,
+                                                             rows[band][:, None] - cy), 0, 1)
+                    scene[band] += inside * (level - scene[band])
         mean = np.clip(scene * light * flicker[n], 0, None)
         if keep_expected:
             expected.append(mean)
