@@ -14,9 +14,12 @@ Only when it helps: the fine part of the background (over its Gaussian smoothing
 ``SMOOTH_PX``) is shrunk towards 1 by the Wiener factor ``1 - n / v`` (``v`` its variance over
 the ROI, ``n`` the part of it that is the noise of the per-pixel means), and no background is
 used at all when that factor is below ``MIN_GAIN``, so a plain plate is left as it was (the
-mean of noisy frames would add fixed-pattern noise). Pixels the mark covered in too many
-priming frames (a mark that hardly moves) get no fine correction. Learned once; not updated
-while tracking.
+mean of noisy frames would add fixed-pattern noise); nor when the background's differences
+between neighbouring columns exceed what the scatter of the frames about it gives by less than
+``MIN_STRUCTURE`` (a texture that moves with the plate averages into a mean smooth at the
+pixel scale, about which the frames scatter far more than noise: not a static pattern).
+Pixels the mark covered in too many priming frames (a mark that hardly moves) get no fine
+correction. Learned once; not updated while tracking.
 """
 
 import math
@@ -29,6 +32,7 @@ SMOOTH_PX = 6.0
 MIN_SAMPLES = 8
 MIN_FRAMES = 12
 MIN_GAIN = 0.5
+MIN_STRUCTURE = 0.25
 PROVISIONAL_FRAMES = 15
 RESIDUAL_FRAMES = 20
 CLIP_SIGMA = 4.0
@@ -168,6 +172,16 @@ class StaticBackground:
         gain = max(0.0, 1.0 - noise / total_variance)
         if gain < MIN_GAIN:
             return
+        # A texture that moves with the plate also leaves a mean, but one smooth at the pixel
+        # scale, and its frames scatter about it far more than noise: the pixel-to-pixel
+        # differences along x of the mean then fall short of what the scatter alone would
+        # give. A pattern fixed in the image has them well above it.
+        step = np.diff(texture, axis=1)
+        both = known[:, 1:] & known[:, :-1]
+        scatter = variance / np.maximum(count, 1) / np.maximum(smooth, 1e-9) ** 2
+        expected = float(np.mean((scatter[:, 1:] + scatter[:, :-1])[both]))
+        if not float(np.mean(step[both] ** 2)) - expected > MIN_STRUCTURE * expected:
+            return
         # The whole static pattern goes (a flat field): its smooth part, nearly noiseless, as
         # it is; its fine part shrunk by the gain; no correction far from any known pixel.
         level = float(np.mean(smooth[known]))
@@ -191,7 +205,7 @@ class StaticBackground:
 def _residual(regions: np.ndarray, covered: np.ndarray, added: np.ndarray | None,
               inverse: np.ndarray, reference: float) -> float:
     """Return the fine structure (energy above a 1 px Gaussian) left on the mark's columns."""
-    located = np.flatnonzero(~covered.all(axis=1))
+    located = np.flatnonzero(covered.any(axis=1) & ~covered.all(axis=1))
     energy = 0.0
     for i in located[::max(located.size // RESIDUAL_FRAMES, 1)]:
         columns = covered[i]
