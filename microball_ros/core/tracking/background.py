@@ -17,7 +17,10 @@ used at all when that factor is below ``MIN_GAIN``, so a plain plate is left as 
 mean of noisy frames would add fixed-pattern noise); nor when the background's differences
 between neighbouring columns exceed what the scatter of the frames about it gives by less than
 ``MIN_STRUCTURE`` (a texture that moves with the plate averages into a mean smooth at the
-pixel scale, about which the frames scatter far more than noise: not a static pattern).
+pixel scale, about which the frames scatter far more than noise: not a static pattern), nor
+when the frames' scatter about it is correlated between neighbouring columns beyond
+``MAX_CORRELATION`` (noise is not; a texture moving past is, even one moving periodically,
+whose mean keeps pixel-scale structure).
 Pixels the mark covered in too many priming frames (a mark that hardly moves) get no fine
 correction. Learned once; not updated while tracking.
 """
@@ -33,6 +36,7 @@ MIN_SAMPLES = 8
 MIN_FRAMES = 12
 MIN_GAIN = 0.5
 MIN_STRUCTURE = 0.25
+MAX_CORRELATION = 0.5
 PROVISIONAL_FRAMES = 15
 RESIDUAL_FRAMES = 20
 CLIP_SIGMA = 4.0
@@ -182,6 +186,11 @@ class StaticBackground:
         expected = float(np.mean((scatter[:, 1:] + scatter[:, :-1])[both]))
         if not float(np.mean(step[both] ** 2)) - expected > MIN_STRUCTURE * expected:
             return
+        # Noise scatters each pixel on its own; a texture moving past scatters neighbouring
+        # pixels alike (its grain), even when it moves periodically and so leaves a mean
+        # with pixel-scale structure.
+        if _neighbour_correlation(regions - mean.astype(np.float32), use) > MAX_CORRELATION:
+            return
         # The whole static pattern goes (a flat field): its smooth part, nearly noiseless, as
         # it is; its fine part shrunk by the gain; no correction far from any known pixel.
         level = float(np.mean(smooth[known]))
@@ -217,6 +226,14 @@ def _residual(regions: np.ndarray, covered: np.ndarray, added: np.ndarray | None
                                             borderType=cv2.BORDER_REFLECT)
         energy += float(np.sum(fine.astype(np.float64) ** 2))
     return energy
+
+
+def _neighbour_correlation(residual: np.ndarray, use: np.ndarray) -> float:
+    """Return the correlation of ``residual`` between neighbouring columns where ``use``."""
+    pair = use[:, :, 1:] & use[:, :, :-1]
+    left, right = residual[:, :, :-1][pair], residual[:, :, 1:][pair]
+    norm = math.sqrt(float(np.dot(left, left)) * float(np.dot(right, right)))
+    return float(np.dot(left, right)) / norm if norm > 0 else 0.0
 
 
 def _masked_moments(regions: np.ndarray,
