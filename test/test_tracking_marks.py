@@ -15,7 +15,7 @@ import pytest
 sys.path.insert(0, __file__.rsplit('/', 1)[0])
 from tracking_scenes import SceneSpec, plates, render  # noqa: E402
 
-from microball_ros.core.tracking import TrackerConfig, track  # noqa: E402
+from microball_ros.core.tracking import Tracker, TrackerConfig, track  # noqa: E402
 from microball_ros.io.video import image_to_gray  # noqa: E402
 
 SCALE = 5e-6
@@ -77,12 +77,13 @@ def test_a_covered_mark_is_never_reported_and_is_reacquired():
 
 
 def test_a_static_texture_is_removed_by_default_and_by_the_template_method():
-    # The default learns the static field with the plate (core.tracking.plate); the centroid
+    # The default removes the static background (core.tracking.background); the centroid
     # alone is pulled by the texture.
     spec = SceneSpec(static_texture=12.0)
     scene = render(spec, 60, seed=3)
+    # The profile centroid without the static background (as before it was learned).
     plain = errors(scene, track(scene.frames, scene.rois, SCALE, fps=30.0,
-                                config=TrackerConfig(method='centroid')))
+                                config=TrackerConfig(method='centroid', static_background=False)))
     for method in ('auto', 'template'):
         found = errors(scene, track(scene.frames, scene.rois, SCALE, fps=30.0,
                                     config=TrackerConfig(method=method)))
@@ -158,3 +159,93 @@ def test_a_faint_mark_smeared_to_about_one_percent_is_not_lost():
         # beyond 3.5 standard errors of the mean of 60 frames.
         assert 0.3 < np.median(result.sigma_px[plate]) / rms < 3.0, plate
         assert abs(np.mean(error)) < 3.5 * rms / np.sqrt(error.size), plate
+
+
+def _rms(error):
+    return float(np.sqrt(np.nanmean(error ** 2)))
+
+
+@pytest.mark.parametrize('kind, shape', [('added', 'bar'), ('added', 'cross'),
+                                         ('transmitted', 'pair')])
+def test_default_tracker_removes_a_static_texture(kind, shape):
+    # A pattern fixed in the image (light added by scratches or glare, or a window's
+    # transmission) over which the marks move: the default tracker learns it on the priming
+    # frames and removes it, to within 25 % (+0.01 px) of the RMS error on the same scene
+    # without the pattern (same noise). Without that it is off by tenths of a pixel or more
+    # (asserted, so the scene is a hard one).
+    texture = {'static_texture': 25.0} if kind == 'added' else {'static_transmission': 0.12}
+    changes = {'cross': dict(width=40.0, height=40.0), 'pair': {}, 'bar': {}}[shape]
+    spec = SceneSpec(plates=plates(shape=shape, **changes), **texture)
+    scene = render(spec, 60, seed=11)
+    twin = render(replace(spec, static_texture=0.0, static_transmission=0.0), 60, seed=11)
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    clean = errors(twin, track(twin.frames, twin.rois, SCALE, fps=30.0))
+    plain = track(scene.frames, scene.rois, SCALE, fps=30.0,
+                  config=TrackerConfig(static_background=False))
+    for plate, error in errors(scene, result).items():
+        assert np.all(np.isfinite(error)), (plate, np.flatnonzero(np.isnan(error)))
+        bound = 1.25 * _rms(clean[plate]) + 0.01
+        assert _rms(error) < min(bound, 0.12), (plate, _rms(error), bound)
+        assert np.max(np.abs(error)) < 0.4, plate
+        before = plain.position_px[plate] - scene.truth[plate]
+        assert _rms(before) > 2 * _rms(error), (plate, _rms(before), _rms(error))
+
+
+def test_bright_blob_under_a_static_texture_and_flicker():
+    spec = SceneSpec(plates=plates(shape='blob', contrast=150.0, level=40.0, width=16.0),
+                     gap_level=20.0, static_texture=12.0, flicker=0.15)
+    scene = render(spec, 60, seed=13)
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    for plate, error in errors(scene, result).items():
+        assert result.polarity[plate] == 'bright'
+        assert np.all(np.isfinite(error)) and _rms(error) < 0.1, (plate, _rms(error))
+
+
+def test_a_plain_plate_learns_no_static_background():
+    # The mean of noisy frames would only add fixed-pattern noise: nothing is removed, and
+    # the positions are those of the tracker without the option, to the last bit.
+    scene = render(SceneSpec(), 60, seed=3)
+    tracker = Tracker(scene.rois, SCALE, 30.0)
+    tracker.prime(list(scene.frames))
+    assert all('static_background' not in m.learned for m in tracker.marks.values())
+    on = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    off = track(scene.frames, scene.rois, SCALE, fps=30.0,
+                config=TrackerConfig(static_background=False))
+    for plate in scene.truth:
+        np.testing.assert_array_equal(on.position_px[plate], off.position_px[plate])
+
+
+def test_covered_marks_on_a_static_texture_are_not_reported_and_are_reacquired():
+    scene = render(SceneSpec(static_texture=15.0), 60, seed=3,
+                   covers=[('slider', 20, 23), ('stator', 40, 40)])
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    err = errors(scene, result)
+    covered = {'slider': [20, 21, 22, 23], 'stator': [40]}
+    for plate, frames in covered.items():
+        assert np.all(np.isnan(err[plate][frames])), plate
+        clear = np.setdiff1d(np.arange(60), frames)
+        assert np.isfinite(err[plate][clear]).all(), plate
+        assert _rms(err[plate][clear]) < 0.1, plate
+
+
+@pytest.mark.parametrize('dy, beside', [(46.0, True), (-46.0, True), (40.0, False),
+                                        (26.0, False)])
+def test_a_dark_ball_beside_or_over_the_mark_does_not_pull_its_position(dy, beside):
+    # A dark ball (28 px, 30 DN on a 170 DN plate) rides 22 px beside the mark for frames
+    # 30-45, above or below it (dy from the mark's centre row; the mark is 50 px tall), or
+    # over its lower rows. Rows outside the mark's own are ignored, so a ball beside it
+    # changes nothing (before: 0.5-1.1 px off); a ball that reaches its rows gives
+    # 'mark partly hidden' (before: 5-12 px off, reported), and the mark is back at once.
+    discs = [('slider', 30, 45, 22.0, dy, 14.0, 30.0), ('stator', 30, 45, -22.0, dy, 14.0, 30.0)]
+    scene = render(SceneSpec(), 60, seed=5, discs=discs)
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    for plate, error in errors(scene, result).items():
+        clear = np.r_[0:30, 46:60]
+        assert np.isfinite(error[clear]).all() and _rms(error[clear]) < 0.06, plate
+        during = error[30:46]
+        if beside:
+            assert np.isfinite(during).all() and np.max(np.abs(during)) < 0.2, plate
+        else:
+            reported = during[np.isfinite(during)]
+            assert reported.size == 0 or np.max(np.abs(reported)) < 0.3, plate
+            assert any(r == 'mark partly hidden' for r in result.reason[plate][30:46]), plate

@@ -2,7 +2,8 @@
 
 Independent of core.camera's scene (only its exact box integral is reused): two plates, each
 with a mark of any polarity and shape ('bar', 'cross', 'pair' of bars, 'blob'), moving along x;
-optional surface texture that moves with its plate, a static texture (fixed in the image),
+optional surface texture that moves with its plate, a static texture (fixed in the image:
+light added, ``static_texture`` in DN, or a transmission, ``static_transmission`` relative),
 illumination flicker, occlusions, 8- or 16-bit output. Everything is analytic: the textures
 are sums of plane waves, so motion blur, pixel integration and the optical PSF are exact
 factors per wave; the marks are boxes or Gaussians integrated over each pixel and averaged
@@ -55,6 +56,7 @@ class SceneSpec:
     exposure: float = 1.0 / 60.0
     gap_level: float = 40.0
     static_texture: float = 0.0
+    static_transmission: float = 0.0
     flicker: float = 0.0
     gradient: tuple = (0.2, 0.1)
     psf: float = 0.9
@@ -127,11 +129,13 @@ class Scene:
     expected: list
 
 
-def render(spec, n_frames, seed=0, covers=(), keep_expected=False):
+def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=()):
     """Render ``n_frames`` frames; ``covers`` = [(plate, first, last)] frames hiding a mark.
 
     A cover paints the plate's own level (times the illumination) over the mark's whole
     band around its position, as a particle or a shadow would, so nothing of it is seen.
+    ``discs`` = [(plate, first, last, dx, dy, radius, level)]: a disc of ``level`` DN (a
+    ball) drawn at (dx, dy) px from the mark's exposure-mean centre, over the mark.
     """
     rng = np.random.default_rng(seed)
     cols = np.arange(spec.width, dtype=float)
@@ -141,6 +145,11 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False):
     xn = cols / (spec.width - 1) - 0.5
     yn = rows / (spec.height - 1) - 0.5
     light = np.outer(1 + spec.gradient[1] * yn, 1 + spec.gradient[0] * xn)
+    if spec.static_transmission:
+        # Its own random stream: the other parts of a scene render as without it.
+        window = _waves(np.random.default_rng(seed + 7919), 60, spec.static_transmission,
+                        2.5, 25.0)
+        light = light * (1 + _texture(cols, rows, window, np.zeros(1), spec.psf))
     base = np.full((spec.height, spec.width), spec.gap_level)
     for plate in spec.plates.values():
         top, bottom = (int(v) for v in plate.band)
@@ -168,6 +177,13 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False):
                     c = int(round(truth[name][n]))
                     left, right = max(c - 60, 0), min(c + 60, spec.width)
                     scene[top:bottom, left:right] = plate.level
+            for disc_plate, first, last, dx, dy, radius, level in discs:
+                if disc_plate == name and first <= n <= last:
+                    cx = truth[name][n] + dx
+                    cy = (plate.band[0] + plate.band[1]) / 2.0 + dy
+                    inside = np.clip(radius + 0.5 - np.hypot(cols[None, :] - cx,
+                                                             rows[band][:, None] - cy), 0, 1)
+                    scene[band] += inside * (level - scene[band])
         mean = np.clip(scene * light * flicker[n], 0, None)
         if keep_expected:
             expected.append(mean)

@@ -77,6 +77,9 @@ class Case:
     defocus_radius: float = 0.0     # px, disc
     flicker: float = 0.0            # per-frame gain uniform in 1 +- flicker
     occlusion: str = ''             # '' | partial | total
+    texture_std: float = 0.05       # moving texture ('textured' plate): relative std
+    speckle_depth: float = 0.4      # speckle plate: 1 - depth + depth * speckle
+    static: float = 0.0             # static window pattern over the view: relative std
     seed: int = 1
 
     @property
@@ -115,6 +118,21 @@ CASES = [
     Case('defocus', 'baseline with a defocus disc of radius 5 px', defocus_radius=5.0),
     Case('heavy_noise', 'baseline with 600 e- full well and 20 e- read noise (~12 DN)',
          full_well=600.0, read_noise=20.0),
+    Case('static_texture', 'dark rectangle on a plain plate seen through a fixed window '
+         'pattern (grains of 1-4 px, 10 % std, multiplicative, plus faint additive scratches) '
+         'fixed in the image over the whole view', category='textured', static=0.10),
+    Case('static_cross', 'the cross through the fixed window pattern', category='textured',
+         mark='cross', static=0.10),
+    Case('static_bars', 'the pair of bars through the fixed window pattern',
+         category='textured', mark='bars', static=0.10),
+    Case('static_bright', 'bright rectangle on a dark plate through the fixed window pattern',
+         category='bright', polarity='bright', static=0.10),
+    Case('textured_cross', 'the cross on the moving mild texture of the textured case',
+         category='textured', mark='cross', plate='textured'),
+    Case('textured_bars', 'the pair of bars on the moving mild texture of the textured case',
+         category='textured', mark='bars', plate='textured'),
+    Case('speckle_mild', 'dark rectangle on a plate with mild speckle (20 % deep)',
+         category='textured', plate='speckle', speckle_depth=0.2),
     Case('fps15', 'baseline at 15 fps (exposure half the period)', fps=15.0),
     Case('fps60', 'baseline at 60 fps', fps=60.0),
     Case('fps120', 'baseline at 120 fps', fps=120.0),
@@ -215,13 +233,13 @@ def build_plates(case, rng):
         texture = np.ones_like(cover)
         if case.plate == 'textured':
             noise = gaussian_filter(rng.standard_normal(cover.shape), (3.0, 3.0 * FINE))
-            texture = 1 + 0.05 * noise / noise.std()
+            texture = 1 + case.texture_std * noise / noise.std()
         elif case.plate == 'speckle':
             field = (gaussian_filter(rng.standard_normal(cover.shape), (0.8, 0.8 * FINE))
                      + 1j * gaussian_filter(rng.standard_normal(cover.shape),
                                             (0.8, 0.8 * FINE)))
             speckle = np.abs(field) ** 2
-            texture = 0.6 + 0.4 * speckle / speckle.mean()
+            texture = 1 - case.speckle_depth + case.speckle_depth * speckle / speckle.mean()
         if case.polarity == 'dark':
             values = level * texture * (1 - case.contrast * cover)
         else:
@@ -242,6 +260,30 @@ def fixed_fields(case, rng):
         dust = gaussian_filter(rng.standard_normal((HEIGHT, WIDTH)), 6.0)
         light *= 1 + 0.03 * dust / dust.std()
     return background, light
+
+
+def window_pattern(case):
+    """Return the static pattern of a window over the view: (multiplicative, additive).
+
+    Fixed in the image (a cover glass between the plates and the camera): grains of about 1, 2
+    and 4 px in equal parts, ``case.static`` relative std in all, times the light; plus
+    faint straight scratches (1 px wide, 3 % of full scale) added on top. Its own random
+    stream, so the other parts of a case render as without it.
+    """
+    if case.static <= 0:
+        return None, None
+    rng = np.random.default_rng(case.seed + 1000)
+    grains = [gaussian_filter(rng.standard_normal((HEIGHT, WIDTH)), s) for s in (0.5, 1.0, 2.0)]
+    grain = sum(g / g.std() for g in grains)
+    multiplicative = 1 + case.static * grain / grain.std()
+    scratches = np.zeros((HEIGHT, WIDTH))
+    yy, xx = np.mgrid[0:HEIGHT, 0:WIDTH]
+    for _ in range(12):
+        angle = rng.uniform(0, math.pi)
+        cx, cy = rng.uniform(0, WIDTH), rng.uniform(0, HEIGHT)
+        distance = np.abs((xx - cx) * math.sin(angle) - (yy - cy) * math.cos(angle))
+        scratches += np.clip(1.0 - distance, 0, 1)
+    return np.clip(multiplicative, 0.5, 1.5), 0.03 * np.clip(scratches, 0, 1)
 
 
 def optics(image, case):
@@ -288,8 +330,11 @@ def occluder_alpha(case, name, t):
     return None
 
 
-def render_frame(case, plates, background, n, light, gain):
-    """Noiseless frame n (DN, float) with truth, visible fractions and the CRB inputs."""
+def render_frame(case, plates, background, n, light, gain, window=(None, None)):
+    """Noiseless frame n (DN, float) with truth, visible fractions and the CRB inputs.
+
+    ``window``: the static (multiplicative, additive) pattern in front of everything, or Nones.
+    """
     full_scale = 2 ** case.bits - 1
     start = n / case.fps
     stop = start + case.exposure
@@ -338,6 +383,10 @@ def render_frame(case, plates, background, n, light, gain):
         visible[name] = float(np.mean(seen))
         for key in deriv:
             deriv[key] *= 1 - mean_alpha
+    times_window, plus_window = window
+    if times_window is not None:
+        light = light * times_window
+        image = image + plus_window / light
     image = optics(image * light * gain * full_scale, case)
     deriv = {k: optics(v * light * gain * full_scale, case) for k, v in deriv.items()}
     return image, truth, visible, deriv
@@ -424,13 +473,14 @@ def generate(case, out_dir):
     rng = np.random.default_rng(case.seed)
     plates = build_plates(case, rng)
     background, light = fixed_fields(case, rng)
+    window = window_pattern(case)
     gains = 1 + case.flicker * rng.uniform(-1, 1, case.n_frames)
     roi = rois(case)
     sink = Sink(case, folder)
     rows, crb_clear = [], {'slider': [], 'stator': []}
     for n in range(case.n_frames):
         mean, truth, visible, deriv = render_frame(case, plates, background, n, light,
-                                                   gains[n])
+                                                   gains[n], window)
         var = noise_variance(case, mean)
         row = {'frame': n, 'time': n / case.fps + case.exposure / 2}
         crb = {}

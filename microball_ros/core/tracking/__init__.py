@@ -12,13 +12,18 @@ tenths of a pixel when the speed changes during the exposure (seen with the pape
 
 Per mark and frame, one module per stage (all 1-D after one pass over the ROI):
 
+0. ``background``: a pattern fixed in the image (a window, dust, scratches), learned on the
+   priming frames outside the mark's footprint, is divided out (or subtracted, if it is light
+   added), only when it stands out from the noise; plain plates are left as they are;
 1. ``profile`` (the mark model): the ROI's rows averaged with weights proportional to the
-   mark's depth in each row; the relative deficit ``d = 1 - profile / baseline``, the baseline
-   a polynomial fitted to the ROI outside the mark, which removes uneven illumination;
+   mark's depth in each row (after its first 20 frames, the mark's own rows and weights,
+   and a frame whose rows depart from them is 'mark partly hidden'); the relative deficit
+   ``d = 1 - profile / baseline``, the baseline a polynomial fitted to the ROI outside the
+   mark, which removes uneven illumination and flicker;
 2. ``search``: the strongest dip of the smoothed deficit, its extent where it exceeds a
    fraction of its peak, plus a pad;
-3. ``mark``: the checks (signal-to-noise, the mark clear of the ROI edges, no saturation, an
-   integrated deficit consistent with recent frames) and the quality;
+3. ``centroid``: the checks (signal-to-noise, the mark clear of the ROI edges, no saturation,
+   an integrated deficit consistent with recent frames) and the quality;
 4. ``subpixel``: the deficit centroid over the extent (exact for any blur), or, when the mark
    has barely moved since the previous frame, the centre of mirror symmetry (Gauss-Newton on
    the antisymmetric energy, band-limited interpolation); if the two disagree by more than 3

@@ -1,12 +1,16 @@
 """One mark in one ROI by its deficit profile (the default method): stages, checks, quality.
 
-Owns CentroidMarkTracker. Per frame it builds the
-profile and baseline (core.tracking.profile), locates the dip (core.tracking.search), checks
-it (signal-to-noise, the mark clear of the ROI edges, no saturation, an integrated deficit
-consistent with recent frames) and fits its position (core.tracking.subpixel). A failed check
-gives NaN and a quality below ``min_quality``: positions are never invented. Its state, all
-from earlier frames in order: the previous position (to tell a still mark from a moving one)
-and the recent integrated deficits (to recognise a partly hidden mark).
+Owns CentroidMarkTracker. Per frame it removes the static background learned on the priming
+frames (core.tracking.background, if any), builds the profile and baseline
+(core.tracking.profile), locates the dip (core.tracking.search), checks it (signal-to-noise,
+the mark clear of the ROI edges, no saturation, row weights like the mark's own, an integrated
+deficit consistent with recent frames) and fits its position (core.tracking.subpixel). A
+failed check gives NaN and a quality below ``min_quality``: positions are never invented. Its
+state, all from earlier frames in order: the previous position (to tell a still mark from a
+moving one), the recent integrated deficits (to recognise a partly hidden mark) and, after
+the first ``ROW_FRAMES`` frames the mark was found in, its rows and row weights (the plates
+move along x only, so they do not change; a frame whose rows depart from them shows a mark
+partly hidden or something dark beside it).
 """
 
 from collections import deque
@@ -14,6 +18,7 @@ import math
 
 import numpy as np
 
+from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.profile import (
@@ -23,11 +28,49 @@ from microball_ros.core.tracking.profile import (
     deficit_noise,
     polarity_of,
     relative_deficit,
-    row_weighted_profile,
+    row_weights,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import locate
 from microball_ros.core.tracking.subpixel import deficit_centroid, refine_position
+
+ROW_FRAMES = 20
+MIN_ROW_FRAMES = 5
+ROW_FRACTION = 0.03
+ROW_MARGIN = 3
+ROW_TOLERANCE = 0.06
+ROW_SPREADS = 5.0
+
+
+def mark_rows(weights: list[np.ndarray],
+              height: int) -> tuple[slice | None, np.ndarray | None, float]:
+    """Return the ROI rows the mark occupies and its row weights there, from several frames.
+
+    The weight of a row is proportional to the mark's integrated deficit in it, which motion
+    along x does not change: the median over the frames is the mark's own, less noisy than
+    one frame's. The rows run from the first to the last whose median weight exceeds
+    ``ROW_FRACTION`` of the largest, widened by ``ROW_MARGIN``. Third, the largest L1
+    distance of one frame's row weights from these that a clear mark shows: ``ROW_TOLERANCE``
+    plus ``ROW_SPREADS`` times the median distance in the frames given. (None, None, inf)
+    with fewer than ``MIN_ROW_FRAMES`` frames or when that leaves fewer than 2 rows.
+    """
+    weights = [w for w in weights if w.size == height]
+    if len(weights) < MIN_ROW_FRAMES:
+        return None, None, math.inf
+    stack = np.array(weights)
+    median = np.median(stack, axis=0)
+    above = np.flatnonzero(median > ROW_FRACTION * float(median.max()))
+    if above.size == 0:
+        return None, None, math.inf
+    first, last = max(int(above[0]) - ROW_MARGIN, 0), min(int(above[-1]) + ROW_MARGIN + 1,
+                                                           height)
+    if last - first < 2:
+        return None, None, math.inf
+    band = median[first:last] / float(median[first:last].sum())
+    own = stack[:, first:last] / np.maximum(stack[:, first:last].sum(axis=1, keepdims=True),
+                                            1e-12)
+    spread = float(np.median(np.abs(own - band).sum(axis=1)))
+    return slice(first, last), band, ROW_TOLERANCE + ROW_SPREADS * spread
 
 
 class CentroidMarkTracker:
@@ -50,6 +93,12 @@ class CentroidMarkTracker:
         self._baseline = Baseline(self.roi[2], self.config.baseline_degree)
         self._areas: deque[float] = deque(maxlen=int(self.config.area_history))
         self._previous: float | None = None
+        self._background = StaticBackground()
+        self._rows: slice | None = None
+        self._row_weights: np.ndarray | None = None
+        self._row_tolerance = math.inf
+        self._weights: np.ndarray | None = None
+        self._row_samples: list[np.ndarray] = []
         self.polarity: str | None = None if self.config.polarity == 'auto' else (
             self.config.polarity)
 
@@ -57,11 +106,31 @@ class CentroidMarkTracker:
         """Forget the history (for a new, unrelated sequence)."""
         self._areas.clear()
         self._previous = None
+        self._rows = self._row_weights = None
+        self._row_tolerance = math.inf
+        self._row_samples.clear()
         if self.config.polarity == 'auto':
             self.polarity = None
 
     def prime(self, frames) -> None:
-        """Nothing to learn beyond the polarity: fix it from the first frames, then reset."""
+        """Learn the polarity, the mark's rows and the static background, then reset.
+
+        The background (core.tracking.background) is learned when ``static_background`` is
+        set: a first one from the plain temporal median locates the mark in every priming
+        frame, then the frames are averaged per pixel outside the mark's footprint. (The
+        mark's rows are learned while tracking, from the first frames, as in streaming.)
+        """
+        frames = list(frames)
+        self._background.clear()
+        regions = None
+        if self.config.static_background:
+            regions = np.stack([roi_region(frame, self.roi, self.name) for frame in frames]
+                               ) if frames else None
+            if regions is not None:
+                self._background.inverse = StaticBackground.provisional(
+                    regions.astype(np.float32))
+                if self._background.inverse is None:
+                    regions = None
         if self.polarity is None:
             for frame in frames:
                 self.measure(frame)
@@ -70,11 +139,37 @@ class CentroidMarkTracker:
         polarity = self.polarity
         self.reset()
         self.polarity = polarity
+        if regions is not None:
+            first = self._background.inverse
+            self._background.learn(regions, self._footprints(frames), first)
+            self.reset()
+            self.polarity = polarity
+
+    def _footprints(self, frames) -> np.ndarray:
+        """Return the columns the mark covers in each frame (all of them where not found)."""
+        x, _, w, _ = self.roi
+        covered = np.ones((len(frames), w), dtype=bool)
+        guard = int(self.config.pad_px) + int(self.config.smoothing_px) + 2
+        for i, frame in enumerate(frames):
+            found = self.measure(frame)
+            if found.valid and math.isfinite(found.extent_px):
+                center = found.position_px - x
+                half = found.extent_px / 2.0 + guard
+                covered[i] = False
+                covered[i, max(int(center - half), 0):max(int(math.ceil(center + half)) + 1,
+                                                           0)] = True
+        return covered
 
     @property
     def learned(self) -> dict:
-        """Return what was learned: the polarity (or nothing)."""
-        return {'polarity': self.polarity} if self.polarity else {}
+        """Return what was learned: the polarity, the static background, the mark's rows."""
+        learned: dict = {'polarity': self.polarity} if self.polarity else {}
+        if self._row_weights is not None and self._rows is not None:
+            learned['rows'] = (self._rows.start, self._rows.stop)
+        if self._background.inverse is not None:
+            learned['static_background'] = self._background.kind
+            learned['static_background_gain'] = self._background.gain
+        return learned
 
     def _invalid(self, reason, contrast=float('nan')):
         self._previous = None
@@ -125,7 +220,9 @@ class CentroidMarkTracker:
         """
         cfg = self.config
         x, y, w, h = self.roi
-        region = roi_region(frame, self.roi, self.name)
+        full = roi_region(frame, self.roi, self.name)
+        rows = slice(None) if self._rows is None else self._rows
+        region = full[rows]
         profile = column_profile(region)
         if not np.all(np.isfinite(profile)):
             return self._invalid('non-finite pixels')
@@ -133,6 +230,10 @@ class CentroidMarkTracker:
                       else default_saturation(region.dtype))
         if saturation is not None and profile.max() >= saturation:
             return self._invalid('saturated')
+        raw = region
+        if self._background.inverse is not None:
+            region = self._background.apply(full)[rows]
+            profile = column_profile(region)
         pad = int(cfg.pad_px)
         guard = pad + int(cfg.smoothing_px)
         baseline = self._baseline.envelope(profile, polarity)
@@ -156,8 +257,19 @@ class CentroidMarkTracker:
             _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px,
                                   cfg.merge_gap_px)
             margin = guard
-        if cfg.weight_rows and h > 1:
-            weighted = row_weighted_profile(region, lo, hi, pad, polarity)
+        if cfg.weight_rows and region.shape[0] > 1:
+            own = row_weights(region, lo, hi, pad, polarity)
+            if self._row_weights is not None and own is not None and float(
+                    np.abs(own - self._row_weights).sum()) > self._row_tolerance:
+                # Rows darker or lighter than the mark's own: partly hidden, or something
+                # dark beside it (a ball passing) that would pull the centroid.
+                return self._invalid('mark partly hidden')
+            weights = own if self._row_weights is None else self._row_weights
+            weighted = None if weights is None else weights @ region.astype(np.float64)
+            if weights is not None and self._rows is None:
+                self._weights = weights
+            else:
+                self._weights = None
             if weighted is not None:
                 deficit = self._deficit(weighted, keep, polarity)
                 if deficit is None:
@@ -172,7 +284,7 @@ class CentroidMarkTracker:
         if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
         if saturation is not None and polarity == 'dark':
-            window = region[:, max(first - guard, 0):last + guard + 1]
+            window = raw[:, max(first - guard, 0):last + guard + 1]
             if np.count_nonzero(window >= saturation) > cfg.max_saturated_fraction * window.size:
                 return self._invalid('saturated', contrast=peak)
         centroid, sigma_centroid, area = deficit_centroid(deficit, first, last, noise)
@@ -197,5 +309,19 @@ class CentroidMarkTracker:
             return MarkMeasurement(float('nan'), quality, contrast=peak, extent_px=extent,
                                    reason=reason)
         self._previous = position
+        self._learn_rows()
         return MarkMeasurement(position, quality, sigma_px=sigma, contrast=peak,
                                extent_px=extent)
+
+    def _learn_rows(self) -> None:
+        """Fix the mark's rows and row weights after ``ROW_FRAMES`` frames it was found in."""
+        if self._rows is not None or self._weights is None:
+            return
+        self._row_samples.append(self._weights)
+        self._weights = None
+        if len(self._row_samples) >= ROW_FRAMES:
+            self._rows, self._row_weights, self._row_tolerance = mark_rows(
+                self._row_samples, self.roi[3])
+            self._row_samples.clear()
+            if self._rows is None:
+                self._rows = slice(None)

@@ -32,6 +32,9 @@ class TrackerConfig:
     the rate of the static-background running mean; ``match_tolerance``: the fit residual,
     in units of the plate's noise, above which a frame does not show the learned mark.
     ``merge_gap_px``: parts of a mark above the threshold this close are one mark (bars).
+    ``static_background``: the default methods learn a pattern fixed in the image (a window,
+    dust, scratches) from the priming frames and divide it out, when it stands out from the
+    noise (core.tracking.background).
     """
 
     method: str = 'auto'
@@ -58,6 +61,7 @@ class TrackerConfig:
     template_forget: float = 0.98
     background_rate: float = 1.0 / 32.0
     match_tolerance: float = 2.0
+    static_background: bool = True
 
     def __post_init__(self) -> None:
         """Reject inconsistent settings with a one-line message."""

@@ -8,7 +8,8 @@ depth in each row, a matched filter across rows estimated from the frame itself
 the mark), which removes uneven illumination; the mark is the relative deficit
 ``1 - profile / baseline`` (dark marks) or its negative (bright ones), ``relative_deficit``.
 ``deficit_noise`` estimates the per-column noise of the deficit from the plain plate.
-Background removal and polarity detection belong here.
+Polarity detection belongs here; a static background is removed before the profile is built
+(core.tracking.background).
 """
 
 import math
@@ -21,7 +22,7 @@ MAD_TO_SIGMA = 1.4826
 
 def column_profile(region: np.ndarray) -> np.ndarray:
     """Return the mean of the ROI's rows (float64, one value per column)."""
-    if region.dtype == np.uint8:
+    if region.dtype in (np.uint8, np.float32):
         return cv2.reduce(region, 0, cv2.REDUCE_AVG, dtype=cv2.CV_64F)[0]
     return region.astype(np.float64).mean(axis=0)
 
