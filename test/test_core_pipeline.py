@@ -192,9 +192,12 @@ def test_intervals_cover_at_ten_frames_per_period(seed):
 
 
 def test_a_fit_biased_by_the_velocity_noise_is_warned():
-    """15 fps, 0.5 Hz, 3 mm, 5 um: the law is nearly linear (alpha max|v_rel| ~ 0.1) and the
-    noise in v_rel bends it: A 0.06 [0.05, 0.08], alpha 2400 for 1.2 and 110, intervals that
-    miss. Refitted with the noise doubled, the estimates move by more than their intervals."""
+    """A nearly linear law bent by the noise in v_rel is warned 'noise-bias'.
+
+    15 fps, 0.5 Hz, 3 mm, 5 um (alpha max|v_rel| ~ 0.1): A 0.06 [0.05, 0.08], alpha 2400 for
+    1.2 and 110, intervals that miss. Refitted with the noise doubled, the estimates move by
+    more than their intervals.
+    """
     t, stator, slider = _record(60.0, fps=15.0, frequency=0.5, amplitude=3e-3, noise=5e-6)
     result = pipeline.analyze_positions(t, stator, slider)
     lo, hi = result.fit.ci95['A']
