@@ -181,7 +181,7 @@ def test_default_tracker_removes_a_static_texture(kind, shape):
     result = track(scene.frames, scene.rois, SCALE, fps=30.0)
     clean = errors(twin, track(twin.frames, twin.rois, SCALE, fps=30.0))
     plain = track(scene.frames, scene.rois, SCALE, fps=30.0,
-                  config=TrackerConfig(static_background=False))
+                  config=TrackerConfig(method='centroid', static_background=False))
     for plate, error in errors(scene, result).items():
         assert np.all(np.isfinite(error)), (plate, np.flatnonzero(np.isnan(error)))
         bound = 1.25 * _rms(clean[plate]) + 0.01

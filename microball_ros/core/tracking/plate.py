@@ -154,6 +154,8 @@ class PlateMarkTracker:
         self._fallback.prime(frames)
         if self.polarity is None or len(frames) < 12:
             return
+        if 'static_background' in self._fallback.learned:
+            return  # a texture fixed in the image: the centroid tracker removes it
         regions = [roi_region(frame, self.roi, self.name) for frame in frames]
         x = self.roi[0]
         sample, marks = [], []
