@@ -51,6 +51,7 @@ from microball_ros.core.tracking.subpixel import deficit_centroid
 TEXTURE_SCORE = 0.5
 ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
+LIGHT_ORDER = 2  # the light's gradient per frame: a polynomial of this degree over the ROI
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -81,6 +82,37 @@ def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -
         if den > 0:
             values.append(float(a @ b) / den)
     return float(np.median(values)) if values else 0.0
+
+
+def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
+                extent: float = 0.0) -> np.ndarray | None:
+    """Return this frame's light over a profile divided by the static field; None if dark.
+
+    The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
+    ``LIGHT_ORDER`` fitted to ``ratio`` outside ``extent`` (px, full width) around ``center``:
+    there the plate is its texture alone, which averages out over the ROI. Without a centre,
+    fitted twice, the second time without the columns the first fit finds in a dip.
+    """
+    sign = 1.0 if polarity == 'dark' else -1.0
+    w = ratio.size
+    u = np.linspace(-1.0, 1.0, w)
+    least = 4 * (LIGHT_ORDER + 1) + 16
+    keep = np.ones(w, dtype=bool)
+    if math.isfinite(center):
+        keep = np.abs(np.arange(w) - center) > 0.5 * extent
+        if np.count_nonzero(keep) < least:
+            keep = np.ones(w, dtype=bool)
+    for round_ in range(1 if math.isfinite(center) else 2):
+        level = np.polyval(np.polyfit(u[keep], ratio[keep], LIGHT_ORDER), u)
+        if not level.min() > 0:
+            return None
+        if round_ == 0 and not math.isfinite(center):
+            d = sign * (1.0 - ratio / level)
+            middle = float(np.median(d))
+            keep = d < middle + 3.0 * 1.4826 * float(np.median(np.abs(d - middle)))
+            if np.count_nonzero(keep) < least:
+                break
+    return level
 
 
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
@@ -194,11 +226,18 @@ class PlateMarkTracker:
         columns = np.arange(w)
         outside = np.abs(columns[None, :] - positions[:, None]) > (extents[:, None] / 2 + 8.0)
         outside &= np.isfinite(positions)[:, None]
-        masked = np.where(outside, profiles, np.nan)
-        with np.errstate(all='ignore'):
-            static = np.nanmedian(masked, axis=0)
-        if not np.all(np.isfinite(static)) or static.min() < cfg.min_baseline:
-            return
+        for _ in range(2):  # the static field, and each frame's light against it
+            masked = np.where(outside, profiles, np.nan)
+            with np.errstate(all='ignore'):
+                static = np.nanmedian(masked, axis=0)
+            if not np.all(np.isfinite(static)) or static.min() < cfg.min_baseline:
+                return
+            for n in np.flatnonzero(np.isfinite(positions)):
+                level = light_level(profiles[n] / static, polarity, positions[n],
+                                    extents[n] + 16.0)
+                if level is None:
+                    return
+                profiles[n] /= level
         self._half = 0.5 * float(np.nanpercentile(extents, 10))
         f = self.exposure_fraction
         kernels = np.full((positions.size, 2), np.nan)
@@ -229,14 +268,19 @@ class PlateMarkTracker:
         """
         cfg = self.config
         profiles = np.array([r.mean(axis=0, dtype=np.float64) for r in regions])
-        static = np.median(profiles, axis=0)
+        profiles /= np.median(profiles, axis=1)[:, None]  # flicker, before the median
+        static = np.median(profiles, axis=0) * float(np.median(
+            [r.mean(dtype=np.float64) for r in regions]))
         sign = 1.0 if self.polarity == 'dark' else -1.0
         positions = np.full(len(regions), np.nan)
         extents = np.full(len(regions), np.nan)
         if static.min() < cfg.min_baseline:
             return positions, extents
         for n, profile in enumerate(profiles):
-            d = sign * (1.0 - profile / static)
+            level = light_level(profile / static, self.polarity)
+            if level is None:
+                continue
+            d = sign * (1.0 - profile / (static * level))
             dip = locate(d, 0.0, 0.25, cfg.smoothing_px)
             first, last = dip.lo - cfg.pad_px, dip.hi + cfg.pad_px
             if first < 1 or last > d.size - 2 or not dip.peak > cfg.min_depth:
@@ -247,8 +291,12 @@ class PlateMarkTracker:
         return positions, extents
 
     def _deficit(self, profile, center=math.nan, extent=0.0):
-        """Return the deficit against the static field (gain and offset are fitted later)."""
-        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - profile / self.static)
+        """Return the deficit against the static field and this frame's light; None if dark."""
+        ratio = profile / self.static
+        level = light_level(ratio, self.polarity, center, extent)
+        if level is None:
+            return None
+        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - ratio / level)
 
     @staticmethod
     def _window(d, column, size):
