@@ -51,6 +51,7 @@ from microball_ros.core.tracking.subpixel import deficit_centroid
 TEXTURE_SCORE = 0.5
 ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
+RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 LIGHT_ORDER = 2  # the light's gradient per frame: a polynomial of this degree over the ROI
 
 
@@ -281,7 +282,7 @@ class PlateMarkTracker:
             if level is None:
                 continue
             d = sign * (1.0 - profile / (static * level))
-            dip = locate(d, 0.0, 0.25, cfg.smoothing_px)
+            dip = locate(d, 0.0, 0.25, cfg.smoothing_px, cfg.merge_gap_px)
             first, last = dip.lo - cfg.pad_px, dip.hi + cfg.pad_px
             if first < 1 or last > d.size - 2 or not dip.peak > cfg.min_depth:
                 continue
@@ -352,6 +353,14 @@ class PlateMarkTracker:
         window, valid, j0 = self._window(d, start, size)
         fit = self.plate.fit(window, valid, start - j0 - self.plate.center, blur, curve,
                              reach + 8.0)
+        if fit is None or fit[5] > cfg.match_tolerance * self._rms:
+            # A short kernel's blur and curvature are hardly separable: the fit can stop in
+            # a false minimum. Restart it from a few short kernels and keep the best.
+            for restart in RESTART_BLURS:
+                other = self.plate.fit(window, valid, start - j0 - self.plate.center, restart,
+                                       0.0, reach + 8.0)
+                if other is not None and (fit is None or other[5] < fit[5]):
+                    fit = other
         if fit is None:
             return self._invalid('no match')
         delta, blur, curve, gain, _, rms, sigma = fit
