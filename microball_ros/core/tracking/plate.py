@@ -45,14 +45,14 @@ from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, TrackPredictor
 from microball_ros.core.tracking.profile import default_saturation, row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
-from microball_ros.core.tracking.search import locate
+from microball_ros.core.tracking.search import dip_extent, locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
 
 TEXTURE_SCORE = 0.5
 ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
-LIGHT_ORDER = 2  # the light's gradient per frame: a polynomial of this degree over the ROI
+LIGHT_ORDER = 2  # the light per frame over the ROI: a polynomial of this degree
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -86,7 +86,7 @@ def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -
 
 
 def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
-                extent: float = 0.0) -> np.ndarray | None:
+                extent: float = 0.0, order: int | None = None) -> np.ndarray | None:
     """Return this frame's light over a profile divided by the static field; None if dark.
 
     The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
@@ -95,16 +95,17 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     fitted twice, the second time without the columns the first fit finds in a dip.
     """
     sign = 1.0 if polarity == 'dark' else -1.0
+    order = LIGHT_ORDER if order is None else int(order)
     w = ratio.size
     u = np.linspace(-1.0, 1.0, w)
-    least = 4 * (LIGHT_ORDER + 1) + 16
+    least = 4 * (order + 1) + 16
     keep = np.ones(w, dtype=bool)
     if math.isfinite(center):
         keep = np.abs(np.arange(w) - center) > 0.5 * extent
         if np.count_nonzero(keep) < least:
             keep = np.ones(w, dtype=bool)
     for round_ in range(1 if math.isfinite(center) else 2):
-        level = np.polyval(np.polyfit(u[keep], ratio[keep], LIGHT_ORDER), u)
+        level = np.polyval(np.polyfit(u[keep], ratio[keep], order), u)
         if not level.min() > 0:
             return None
         if round_ == 0 and not math.isfinite(center):
@@ -145,6 +146,9 @@ class PlateMarkTracker:
         self.weights: np.ndarray | None = None
         self.static: np.ndarray | None = None
         self._half = 8.0
+        self._outer = 8.0
+        self._full: PlateModel | None = None
+        self._shift = 0.0
         self._rms = 1.0
         self._predictor = TrackPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
@@ -235,7 +239,7 @@ class PlateMarkTracker:
                 return
             for n in np.flatnonzero(np.isfinite(positions)):
                 level = light_level(profiles[n] / static, polarity, positions[n],
-                                    extents[n] + 16.0)
+                                    extents[n] + 16.0, 0)
                 if level is None:
                     return
                 profiles[n] /= level
@@ -257,6 +261,13 @@ class PlateMarkTracker:
             np.isfinite(solver.kernels[:, 0])) else 0.0
         local = solver.plate.local(center, reach + 8.0 + min(longest, cfg.max_blur_px) + 16.0)
         self.plate = local
+        self._full, self._shift = solver.plate, center
+        c = local.center
+        near = int(reach)
+        peak = c - near + int(np.argmax(local.values[c - near:c + near + 1]))
+        lo, hi = dip_extent(local.values, peak, 0.25 * float(local.values[peak]),
+                            int(cfg.merge_gap_px))
+        self._outer = max(float(c - lo), float(hi - c), reach)
         self.static = solver.static
         self._rms = float(np.median(rms)) if len(rms) else 1.0
 
@@ -278,7 +289,7 @@ class PlateMarkTracker:
         if static.min() < cfg.min_baseline:
             return positions, extents
         for n, profile in enumerate(profiles):
-            level = light_level(profile / static, self.polarity)
+            level = light_level(profile / static, self.polarity, order=0)
             if level is None:
                 continue
             d = sign * (1.0 - profile / (static * level))
@@ -291,13 +302,37 @@ class PlateMarkTracker:
                 positions[n], extents[n] = centroid, float(dip.hi - dip.lo + 1)
         return positions, extents
 
-    def _deficit(self, profile, center=math.nan, extent=0.0):
-        """Return the deficit against the static field and this frame's light; None if dark."""
+    def _deficit(self, profile, center=math.nan, extent=0.0, kernel=None):
+        """Return the deficit against the static field and this frame's light; None if dark.
+
+        With a centre (the mark's column, predicted or found) the light is fitted to the
+        profile over the static field and over the whole learned plate placed there (its
+        texture is known, so only the light is left), outside ``extent`` around the mark.
+        """
         ratio = profile / self.static
-        level = light_level(ratio, self.polarity, center, extent)
+        plate = ratio
+        if self._full is not None and math.isfinite(center):
+            plate = ratio / self._plate_level(center, kernel)
+        level = light_level(plate, self.polarity, center, extent)
         if level is None:
             return None
         return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - ratio / level)
+
+    def _plate_level(self, center, kernel):
+        """Return the learned plate over the ROI (1 - sign D, smeared) with the mark at center."""
+        full = self._full
+        sign = 1.0 if self.polarity == 'dark' else -1.0
+        s = center - self._shift
+        j0 = int(round(s)) - full.center
+        blur, curve = kernel if kernel is not None else (0.0, 0.0)
+        model = full.model(s - round(s), abs(blur), curve)
+        level = 1.0 - sign * model.take(np.arange(self.roi[2]) - j0, mode='wrap')
+        return np.clip(level, 0.05, None)
+
+    def _span(self, blur, kernel):
+        """Return the width (px) the smeared mark can cover: the light is fitted outside it."""
+        curve = abs(kernel[1]) if kernel is not None else 0.0
+        return 2.0 * (self._outer + 0.5 * abs(blur) + 0.25 * curve) + 8.0
 
     @staticmethod
     def _window(d, column, size):
@@ -336,7 +371,7 @@ class PlateMarkTracker:
             else None
         if gated is not None:
             blur = kernel[0] if kernel is not None else 0.0
-            d = self._deficit(profile, gated.column, 2 * reach + blur + 8.0)
+            d = self._deficit(profile, gated.column, self._span(blur, kernel), kernel)
         else:
             d = self._deficit(profile, math.nan, 0.0)
         if d is None:
@@ -346,7 +381,8 @@ class PlateMarkTracker:
             return self._invalid('mark at the ROI edge')
         start, blur, curve = found
         if gated is None:
-            d = self._deficit(profile, start, 2 * reach + blur + 8.0)
+            d = self._deficit(profile, start, self._span(blur, (blur, curve)),
+                              (blur, curve))
             if d is None:
                 return self._invalid('too dark')
         size = self.plate.size
