@@ -53,6 +53,7 @@ ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 LIGHT_ORDER = 2  # the light per frame over the ROI: a polynomial of this degree
+LIGHT_FLANK = 48.0  # while tracking, from this many px on either side of the mark
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -86,13 +87,17 @@ def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -
 
 
 def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
-                extent: float = 0.0, order: int | None = None) -> np.ndarray | None:
+                extent: float = 0.0, order: int | None = None,
+                flank: float | None = None) -> np.ndarray | None:
     """Return this frame's light over a profile divided by the static field; None if dark.
 
     The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
     ``LIGHT_ORDER`` fitted to ``ratio`` outside ``extent`` (px, full width) around ``center``:
-    there the plate is its texture alone, which averages out over the ROI. Without a centre,
-    fitted twice, the second time without the columns the first fit finds in a dip.
+    there the plate is its texture alone (or nothing, when ``ratio`` was divided by it). Refitted
+    without the columns far off the fit: without a centre, those in a dip (the mark); with
+    one, any (something passing over the plate). With ``flank`` (px), only the columns that
+    far beyond ``extent`` on either side are used, and the light is a straight line across
+    the mark (a constant when one side is missing).
     """
     sign = 1.0 if polarity == 'dark' else -1.0
     order = LIGHT_ORDER if order is None else int(order)
@@ -101,19 +106,30 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     least = 4 * (order + 1) + 16
     keep = np.ones(w, dtype=bool)
     if math.isfinite(center):
-        keep = np.abs(np.arange(w) - center) > 0.5 * extent
+        offset = np.arange(w) - center
+        keep = np.abs(offset) > 0.5 * extent
+        if flank is not None:
+            keep &= np.abs(offset) <= 0.5 * extent + flank
+            sides = min(np.count_nonzero(keep & (offset < 0)),
+                        np.count_nonzero(keep & (offset > 0)))
+            order = min(order, 1) if sides >= 8 else 0
+            least = 12
         if np.count_nonzero(keep) < least:
             keep = np.ones(w, dtype=bool)
-    for round_ in range(1 if math.isfinite(center) else 2):
+    for _ in range(3):
         level = np.polyval(np.polyfit(u[keep], ratio[keep], order), u)
         if not level.min() > 0:
             return None
-        if round_ == 0 and not math.isfinite(center):
-            d = sign * (1.0 - ratio / level)
-            middle = float(np.median(d))
-            keep = d < middle + 3.0 * 1.4826 * float(np.median(np.abs(d - middle)))
-            if np.count_nonzero(keep) < least:
-                break
+        # Columns far off the light (the mark, found in a dip, or something passing over
+        # the plate) are left out, and the light fitted again.
+        d = sign * (1.0 - ratio / level)
+        middle = float(np.median(d[keep]))
+        spread = 1.4826 * float(np.median(np.abs(d[keep] - middle)))
+        inside = np.abs(d - middle) <= 4.0 * spread if math.isfinite(center) else (
+            d < middle + 3.0 * spread)
+        if np.count_nonzero(keep & inside) < least or np.all(inside[keep]):
+            break
+        keep &= inside
     return level
 
 
@@ -313,7 +329,8 @@ class PlateMarkTracker:
         plate = ratio
         if self._full is not None and math.isfinite(center):
             plate = ratio / self._plate_level(center, kernel)
-        level = light_level(plate, self.polarity, center, extent)
+        level = light_level(plate, self.polarity, center, extent,
+                            flank=LIGHT_FLANK if math.isfinite(center) else None)
         if level is None:
             return None
         return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - ratio / level)
