@@ -406,7 +406,7 @@ class PlateMarkTracker:
         window, valid, j0 = self._window(d, start, size)
         fit = self.plate.fit(window, valid, start - j0 - self.plate.center, blur, curve,
                              reach + 8.0)
-        if fit is None or fit[5] > cfg.match_tolerance * self._rms:
+        if fit is None or fit[5] > (cfg.match_tolerance + 0.5) * self._rms:
             # A short kernel's blur and curvature are hardly separable: the fit can stop in
             # a false minimum. Restart it from a few short kernels and keep the best.
             for restart in RESTART_BLURS:
