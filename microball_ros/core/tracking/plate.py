@@ -15,20 +15,27 @@ averaged over the exposure. The tracker
 
 1. learns from the priming frames the row weights (the mark's depth per row) and, jointly
    (``PlateSolver``, alternating least squares), the whole plate's deficit ``D`` seen through
-   the ROI, the static field (illumination and dust fixed in the image) with a gain per frame,
-   and each frame's position and kernel: first positions from the dip's centroid and kernels
-   from neighbouring frames, then rounds of ``D`` (preconditioned conjugate gradients, exact
-   for partial coverage), static field and gains (closed form), positions and kernels (fits).
+   the ROI, the static field (illumination and dust fixed in the image) with each frame's
+   light (flicker and a drifting gradient: a quadratic over the ROI), and each frame's
+   position and kernel: first positions from the dip's centroid (the parts of a mark, such
+   as two bars, joined; a gain per frame divided out) and kernels from neighbouring frames,
+   then rounds of ``D`` (preconditioned conjugate gradients, exact for partial coverage),
+   static field and lights (closed form), positions and kernels (fits).
    ``D``'s origin is then moved to the mark's centre, the mid-point of its two outer edges
    (half-depth crossings against the levels on either side of each edge), which a
    multiplicative texture hardly moves (a centroid is pulled by it);
-2. per frame divides the row-weighted profile by the static field (a gain, flicker, is
-   fitted below), searches the mark by a matched filter of ``D`` smeared by the predicted
+2. per frame divides the row-weighted profile by the static field and by the frame's light:
+   a straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
+   profile over the whole learned plate placed at the predicted position, so the texture is
+   not mistaken for light and the mark's contrast is relative to the plate next to it in
+   the same frame (flicker does not look like a covered mark); then searches the mark by a
+   matched filter of ``D`` smeared by the predicted
    motion, gated around the position predicted from the recent track (``TrackPredictor``,
    core.tracking.predict's recurrence, vectorised) so texture dips never win, over the whole
    ROI after a loss;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
-   common to data and model, is signal rather than error;
+   common to data and model, is signal rather than error; a fit far worse than priming's is
+   restarted from short kernels (their blur and curvature are hardly separable);
 4. checks the mark clear of the ROI edges, its contrast ``g`` against recent frames (a covered
    mark loses contrast) and the fit's residual against the residuals while priming: a failed
    check gives NaN with a quality below ``min_quality``; positions are never invented.
