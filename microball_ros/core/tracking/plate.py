@@ -15,20 +15,27 @@ averaged over the exposure. The tracker
 
 1. learns from the priming frames the row weights (the mark's depth per row) and, jointly
    (``PlateSolver``, alternating least squares), the whole plate's deficit ``D`` seen through
-   the ROI, the static field (illumination and dust fixed in the image) with a gain per frame,
-   and each frame's position and kernel: first positions from the dip's centroid and kernels
-   from neighbouring frames, then rounds of ``D`` (preconditioned conjugate gradients, exact
-   for partial coverage), static field and gains (closed form), positions and kernels (fits).
+   the ROI, the static field (illumination and dust fixed in the image) with each frame's
+   light (flicker and a drifting gradient: a quadratic over the ROI), and each frame's
+   position and kernel: first positions from the dip's centroid (the parts of a mark, such
+   as two bars, joined; a gain per frame divided out) and kernels from neighbouring frames,
+   then rounds of ``D`` (preconditioned conjugate gradients, exact for partial coverage),
+   static field and lights (closed form), positions and kernels (fits).
    ``D``'s origin is then moved to the mark's centre, the mid-point of its two outer edges
    (half-depth crossings against the levels on either side of each edge), which a
    multiplicative texture hardly moves (a centroid is pulled by it);
-2. per frame divides the row-weighted profile by the static field (a gain, flicker, is
-   fitted below), searches the mark by a matched filter of ``D`` smeared by the predicted
+2. per frame divides the row-weighted profile by the static field and by the frame's light:
+   a straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
+   profile over the whole learned plate placed at the predicted position, so the texture is
+   not mistaken for light and the mark's contrast is relative to the plate next to it in
+   the same frame (flicker does not look like a covered mark); then searches the mark by a
+   matched filter of ``D`` smeared by the predicted
    motion, gated around the position predicted from the recent track (``TrackPredictor``,
    core.tracking.predict's recurrence, vectorised) so texture dips never win, over the whole
    ROI after a loss;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
-   common to data and model, is signal rather than error;
+   common to data and model, is signal rather than error; a fit far worse than priming's is
+   restarted from short kernels (their blur and curvature are hardly separable);
 4. checks the mark clear of the ROI edges, its contrast ``g`` against recent frames (a covered
    mark loses contrast) and the fit's residual against the residuals while priming: a failed
    check gives NaN with a quality below ``min_quality``; positions are never invented.
@@ -45,12 +52,15 @@ from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, TrackPredictor
 from microball_ros.core.tracking.profile import default_saturation, row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
-from microball_ros.core.tracking.search import locate
+from microball_ros.core.tracking.search import dip_extent, locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
 
 TEXTURE_SCORE = 0.5
 ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
+RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
+LIGHT_ORDER = 2  # the light per frame over the ROI: a polynomial of this degree
+LIGHT_FLANK = 48.0  # while tracking, from this many px on either side of the mark
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -83,6 +93,53 @@ def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -
     return float(np.median(values)) if values else 0.0
 
 
+def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
+                extent: float = 0.0, order: int | None = None,
+                flank: float | None = None) -> np.ndarray | None:
+    """Return this frame's light over a profile divided by the static field; None if dark.
+
+    The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
+    ``LIGHT_ORDER`` fitted to ``ratio`` outside ``extent`` (px, full width) around ``center``:
+    there the plate is its texture alone (or nothing, when ``ratio`` was divided by it). Refitted
+    without the columns far off the fit: without a centre, those in a dip (the mark); with
+    one, any (something passing over the plate). With ``flank`` (px), only the columns that
+    far beyond ``extent`` on either side are used, and the light is a straight line across
+    the mark (a constant when one side is missing).
+    """
+    sign = 1.0 if polarity == 'dark' else -1.0
+    order = LIGHT_ORDER if order is None else int(order)
+    w = ratio.size
+    u = np.linspace(-1.0, 1.0, w)
+    least = 4 * (order + 1) + 16
+    keep = np.ones(w, dtype=bool)
+    if math.isfinite(center):
+        offset = np.arange(w) - center
+        keep = np.abs(offset) > 0.5 * extent
+        if flank is not None:
+            keep &= np.abs(offset) <= 0.5 * extent + flank
+            sides = min(np.count_nonzero(keep & (offset < 0)),
+                        np.count_nonzero(keep & (offset > 0)))
+            order = min(order, 1) if sides >= 8 else 0
+            least = 12
+        if np.count_nonzero(keep) < least:
+            keep = np.ones(w, dtype=bool)
+    for _ in range(3):
+        level = np.polyval(np.polyfit(u[keep], ratio[keep], order), u)
+        if not level.min() > 0:
+            return None
+        # Columns far off the light (the mark, found in a dip, or something passing over
+        # the plate) are left out, and the light fitted again.
+        d = sign * (1.0 - ratio / level)
+        middle = float(np.median(d[keep]))
+        spread = 1.4826 * float(np.median(np.abs(d[keep] - middle)))
+        inside = np.abs(d - middle) <= 4.0 * spread if math.isfinite(center) else (
+            d < middle + 3.0 * spread)
+        if np.count_nonzero(keep & inside) < least or np.all(inside[keep]):
+            break
+        keep &= inside
+    return level
+
+
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
                       threshold: float = TEXTURE_SCORE) -> bool:
     """Return True if the plate around the mark carries a texture (``texture_score``).
@@ -112,6 +169,9 @@ class PlateMarkTracker:
         self.weights: np.ndarray | None = None
         self.static: np.ndarray | None = None
         self._half = 8.0
+        self._outer = 8.0
+        self._full: PlateModel | None = None
+        self._shift = 0.0
         self._rms = 1.0
         self._predictor = TrackPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
@@ -196,11 +256,18 @@ class PlateMarkTracker:
         columns = np.arange(w)
         outside = np.abs(columns[None, :] - positions[:, None]) > (extents[:, None] / 2 + 8.0)
         outside &= np.isfinite(positions)[:, None]
-        masked = np.where(outside, profiles, np.nan)
-        with np.errstate(all='ignore'):
-            static = np.nanmedian(masked, axis=0)
-        if not np.all(np.isfinite(static)) or static.min() < cfg.min_baseline:
-            return
+        for _ in range(2):  # the static field, and each frame's light against it
+            masked = np.where(outside, profiles, np.nan)
+            with np.errstate(all='ignore'):
+                static = np.nanmedian(masked, axis=0)
+            if not np.all(np.isfinite(static)) or static.min() < cfg.min_baseline:
+                return
+            for n in np.flatnonzero(np.isfinite(positions)):
+                level = light_level(profiles[n] / static, polarity, positions[n],
+                                    extents[n] + 16.0, 0)
+                if level is None:
+                    return
+                profiles[n] /= level
         self._half = 0.5 * float(np.nanpercentile(extents, 10))
         f = self.exposure_fraction
         kernels = np.full((positions.size, 2), np.nan)
@@ -219,6 +286,13 @@ class PlateMarkTracker:
             np.isfinite(solver.kernels[:, 0])) else 0.0
         local = solver.plate.local(center, reach + 8.0 + min(longest, cfg.max_blur_px) + 16.0)
         self.plate = local
+        self._full, self._shift = solver.plate, center
+        c = local.center
+        near = int(reach)
+        peak = c - near + int(np.argmax(local.values[c - near:c + near + 1]))
+        lo, hi = dip_extent(local.values, peak, 0.25 * float(local.values[peak]),
+                            int(cfg.merge_gap_px))
+        self._outer = max(float(c - lo), float(hi - c), reach)
         self.static = solver.static
         self._rms = float(np.median(rms)) if len(rms) else 1.0
 
@@ -231,15 +305,20 @@ class PlateMarkTracker:
         """
         cfg = self.config
         profiles = np.array([r.mean(axis=0, dtype=np.float64) for r in regions])
-        static = np.median(profiles, axis=0)
+        profiles /= np.median(profiles, axis=1)[:, None]  # flicker, before the median
+        static = np.median(profiles, axis=0) * float(np.median(
+            [r.mean(dtype=np.float64) for r in regions]))
         sign = 1.0 if self.polarity == 'dark' else -1.0
         positions = np.full(len(regions), np.nan)
         extents = np.full(len(regions), np.nan)
         if static.min() < cfg.min_baseline:
             return positions, extents
         for n, profile in enumerate(profiles):
-            d = sign * (1.0 - profile / static)
-            dip = locate(d, 0.0, 0.25, cfg.smoothing_px)
+            level = light_level(profile / static, self.polarity, order=0)
+            if level is None:
+                continue
+            d = sign * (1.0 - profile / (static * level))
+            dip = locate(d, 0.0, 0.25, cfg.smoothing_px, cfg.merge_gap_px)
             first, last = dip.lo - cfg.pad_px, dip.hi + cfg.pad_px
             if first < 1 or last > d.size - 2 or not dip.peak > cfg.min_depth:
                 continue
@@ -248,9 +327,38 @@ class PlateMarkTracker:
                 positions[n], extents[n] = centroid, float(dip.hi - dip.lo + 1)
         return positions, extents
 
-    def _deficit(self, profile, center=math.nan, extent=0.0):
-        """Return the deficit against the static field (gain and offset are fitted later)."""
-        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - profile / self.static)
+    def _deficit(self, profile, center=math.nan, extent=0.0, kernel=None):
+        """Return the deficit against the static field and this frame's light; None if dark.
+
+        With a centre (the mark's column, predicted or found) the light is fitted to the
+        profile over the static field and over the whole learned plate placed there (its
+        texture is known, so only the light is left), outside ``extent`` around the mark.
+        """
+        ratio = profile / self.static
+        plate = ratio
+        if self._full is not None and math.isfinite(center):
+            plate = ratio / self._plate_level(center, kernel)
+        level = light_level(plate, self.polarity, center, extent,
+                            flank=LIGHT_FLANK if math.isfinite(center) else None)
+        if level is None:
+            return None
+        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - ratio / level)
+
+    def _plate_level(self, center, kernel):
+        """Return the learned plate over the ROI (1 - sign D, smeared) with the mark at center."""
+        full = self._full
+        sign = 1.0 if self.polarity == 'dark' else -1.0
+        s = center - self._shift
+        j0 = int(round(s)) - full.center
+        blur, curve = kernel if kernel is not None else (0.0, 0.0)
+        model = full.model(s - round(s), abs(blur), curve)
+        level = 1.0 - sign * model.take(np.arange(self.roi[2]) - j0, mode='wrap')
+        return np.clip(level, 0.05, None)
+
+    def _span(self, blur, kernel):
+        """Return the width (px) the smeared mark can cover: the light is fitted outside it."""
+        curve = abs(kernel[1]) if kernel is not None else 0.0
+        return 2.0 * (self._outer + 0.5 * abs(blur) + 0.25 * curve) + 8.0
 
     @staticmethod
     def _window(d, column, size):
@@ -289,7 +397,7 @@ class PlateMarkTracker:
             else None
         if gated is not None:
             blur = kernel[0] if kernel is not None else 0.0
-            d = self._deficit(profile, gated.column, 2 * reach + blur + 8.0)
+            d = self._deficit(profile, gated.column, self._span(blur, kernel), kernel)
         else:
             d = self._deficit(profile, math.nan, 0.0)
         if d is None:
@@ -299,13 +407,22 @@ class PlateMarkTracker:
             return self._invalid('mark at the ROI edge')
         start, blur, curve = found
         if gated is None:
-            d = self._deficit(profile, start, 2 * reach + blur + 8.0)
+            d = self._deficit(profile, start, self._span(blur, (blur, curve)),
+                              (blur, curve))
             if d is None:
                 return self._invalid('too dark')
         size = self.plate.size
         window, valid, j0 = self._window(d, start, size)
         fit = self.plate.fit(window, valid, start - j0 - self.plate.center, blur, curve,
                              reach + 8.0)
+        if fit is None or fit[5] > (cfg.match_tolerance + 0.5) * self._rms:
+            # A short kernel's blur and curvature are hardly separable: the fit can stop in
+            # a false minimum. Restart it from a few short kernels and keep the best.
+            for restart in RESTART_BLURS:
+                other = self.plate.fit(window, valid, start - j0 - self.plate.center, restart,
+                                       0.0, reach + 8.0)
+                if other is not None and (fit is None or other[5] < fit[5]):
+                    fit = other
         if fit is None:
             return self._invalid('no match')
         delta, blur, curve, gain, _, rms, sigma = fit

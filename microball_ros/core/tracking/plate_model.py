@@ -5,7 +5,7 @@ blur ``L`` and curvature ``Q``, as core.tracking.template) and its derivatives, 
 ``TrackPredictor``: core.tracking.predict's linear recurrence, vectorised; ``PlateModel``: the
 plate's relative deficit ``D(u)`` in plate coordinates, smeared and placed per frame;
 ``PlateSolver``: the joint least-squares learning of ``D``, the static field and the frames'
-gains, positions and kernels (see core.tracking.plate).
+light, positions and kernels (see core.tracking.plate).
 """
 
 from collections import deque
@@ -289,21 +289,26 @@ def grid_window(d, column, size, center):
 class PlateSolver:
     """The plate seen through one ROI, learned from frames by alternating least squares.
 
-    Model of frame n's profile: ``gain_n * static(x) * (1 - sign * (D * K_n)(x - s_n))``,
+    Model of frame n's profile: ``light_n(x) * static(x) * (1 - sign * (D * K_n)(x - s_n))``,
     ``D`` the whole plate's relative deficit on one grid (every column any frame saw), ``K_n``
     the exposure's motion kernel. Rounds of: ``D`` given the rest (preconditioned conjugate
     gradients on the normal equations, circular convolutions by FFT, batched over frames);
-    ``static`` and the gains given ``D`` (closed form); each frame's position and kernel
-    given both (``PlateModel.fit``).
+    ``static`` and the frames' light (a low-order polynomial each) given ``D`` (closed form);
+    each frame's position and kernel given both (``PlateModel.fit``).
     """
 
     def __init__(self, profiles: np.ndarray, static: np.ndarray, sign: float,
-                 regularisation: float = 0.05, iterations: int = 60):
-        """Keep the frames' profiles (frames x columns) and a first static field."""
+                 regularisation: float = 0.05, iterations: int = 60, light_order: int = 2):
+        """Keep the frames' profiles (frames x columns) and a first static field.
+
+        Each frame's light is a polynomial of degree ``light_order`` over the columns (a gain,
+        flicker, and a gradient of the light that changes), times the static field.
+        """
         self.profiles = profiles
         self.static = static.copy()
         self.sign = float(sign)
-        self.gains = np.ones(len(profiles))
+        self.basis = np.vander(np.linspace(-1.0, 1.0, profiles.shape[1]), int(light_order) + 1)
+        self.light = np.ones(profiles.shape)
         self.regularisation = float(regularisation)
         self.iterations = int(iterations)
         self.plate: PlateModel | None = None
@@ -337,29 +342,28 @@ class PlateSolver:
             mask = np.zeros((use.size, size))
             mask[rows, cols] = 1.0
             data = np.zeros((use.size, size))
-            ratio = self.profiles[use] / (self.gains[use][:, None] * self.static[None, :])
+            ratio = self.profiles[use] / (self.light[use] * self.static[None, :])
             data[rows, cols] = self.sign * (1.0 - ratio)
             values = self._solve(values, spectra, mask, data, w / size)
             plate.values = values
             plate.spectrum = np.fft.rfft(values)
             model = 1.0 - self.sign * np.fft.irfft(plate.spectrum * spectra, size,
                                                    axis=1)[rows, cols]
-            measured, gains = self.profiles[use], self.gains[use]
+            measured, light = self.profiles[use], self.light[use]
             for _ in range(2):
-                static = ((gains[:, None] * measured * model).sum(axis=0)
-                          / (gains[:, None] ** 2 * model ** 2).sum(axis=0))
-                gains = ((measured * static * model).sum(axis=1)
-                         / ((static * model) ** 2).sum(axis=1))
-                scale = float(np.median(gains))
-                gains, static = gains / scale, static * scale
-            self.static, self.gains[use] = static, gains
+                static = ((light * measured * model).sum(axis=0)
+                          / (light ** 2 * model ** 2).sum(axis=0))
+                light = self._light(measured, static * model)
+                scale = light.mean(axis=0)  # a light common to all frames is static
+                light, static = light / scale, static * scale
+            self.static, self.light[use] = static, light
             if round_ == rounds - 1:
                 break
             rms = []
             longest = float(np.max(np.abs(kernels[use, 0])) + np.max(np.abs(kernels[use, 1])))
             local = plate.local(0.0, reach + 2.0 * longest + 16.0)
             for n in use:
-                d = self.sign * (1.0 - self.profiles[n] / (self.gains[n] * self.static))
+                d = self.sign * (1.0 - self.profiles[n] / (self.light[n] * self.static))
                 window, valid, start = grid_window(d, positions[n], local.size, local.center)
                 fit = local.fit(window, valid, positions[n] - start - local.center,
                                 kernels[n, 0], kernels[n, 1], reach, iterations=2)
@@ -373,6 +377,14 @@ class PlateSolver:
                 rms.append(fit[5])
         self.plate, self.kernels, self.positions = plate, kernels, positions
         return rms
+
+    def _light(self, measured, expected):
+        """Return each frame's light: the polynomial times ``expected`` nearest ``measured``."""
+        design = expected[:, :, None] * self.basis[None, :, :]
+        normal = np.einsum('nwi,nwj->nij', design, design)
+        right = np.einsum('nwi,nw->ni', design, measured)
+        coefficients = np.linalg.solve(normal, right[:, :, None])[:, :, 0]
+        return coefficients @ self.basis.T
 
     def _solve(self, start, spectra, mask, data, coverage):
         """Return the regularised least-squares plate (PCG from ``start``)."""
