@@ -30,8 +30,8 @@ averaged over the exposure. The tracker
    not mistaken for light and the mark's contrast is relative to the plate next to it in
    the same frame (flicker does not look like a covered mark); then searches the mark by a
    matched filter of ``D`` smeared by the predicted
-   motion, gated around the position predicted from the recent track (``TrackPredictor``,
-   core.tracking.predict's recurrence, vectorised) so texture dips never win, over the whole
+   motion, gated around the position predicted from the recent track (``MotionPredictor``,
+   core.tracking.predict) so texture dips never win, over the whole
    ROI after a loss;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
    common to data and model, is signal rather than error; a fit far worse than priming's is
@@ -49,7 +49,8 @@ import numpy as np
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
-from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, TrackPredictor
+from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver
+from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.profile import default_saturation, row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent, locate
@@ -173,7 +174,7 @@ class PlateMarkTracker:
         self._full: PlateModel | None = None
         self._shift = 0.0
         self._rms = 1.0
-        self._predictor = TrackPredictor()
+        self._predictor = MotionPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
 
     @property
@@ -271,9 +272,9 @@ class PlateMarkTracker:
         self._half = 0.5 * float(np.nanpercentile(extents, 10))
         f = self.exposure_fraction
         kernels = np.full((positions.size, 2), np.nan)
-        for n in range(1, positions.size - 1):
-            before, middle, after = positions[n - 1:n + 2]
-            kernels[n] = (abs(after - before) / 2 * f, (after - 2 * middle + before) * f * f / 2)
+        for i in range(1, positions.size - 1):
+            before, middle, after = positions[i - 1:i + 2]
+            kernels[i] = (abs(after - before) / 2 * f, (after - 2 * middle + before) * f * f / 2)
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
         rms = solver.learn(positions, kernels, reach + 8.0, ROUNDS)
@@ -347,6 +348,8 @@ class PlateMarkTracker:
     def _plate_level(self, center, kernel):
         """Return the learned plate over the ROI (1 - sign D, smeared) with the mark at center."""
         full = self._full
+        if full is None:
+            return None
         sign = 1.0 if self.polarity == 'dark' else -1.0
         s = center - self._shift
         j0 = int(round(s)) - full.center

@@ -2,19 +2,16 @@
 
 ``kernel_derivatives`` / ``kernel_spectra``: the exposure's motion kernel (a quadratic path,
 blur ``L`` and curvature ``Q``, as core.tracking.template) and its derivatives, in frequency;
-``TrackPredictor``: core.tracking.predict's linear recurrence, vectorised; ``PlateModel``: the
-plate's relative deficit ``D(u)`` in plate coordinates, smeared and placed per frame;
+``PlateModel``: the plate's relative deficit ``D(u)`` in plate coordinates, smeared and
+placed per frame;
 ``PlateSolver``: the joint least-squares learning of ``D``, the static field and the frames'
 light, positions and kernels (see core.tracking.plate).
 """
 
-from collections import deque
 import math
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
-from microball_ros.core.tracking.predict import Prediction
 from microball_ros.core.tracking.template import SEGMENTS, kernel_spectrum, tukey
 
 UPSAMPLE = 8  # the plate model's grid: 1/8 px
@@ -56,55 +53,6 @@ def kernel_spectra(k: np.ndarray, blurs: np.ndarray, curves: np.ndarray,
     half = 0.5 * (np.outer(blurs, _WIDTH_L) + np.outer(curves, _WIDTH_Q))
     sinc = np.sinc(half[:, :, None] * (k / np.pi))
     return (np.exp(mid[:, :, None] * (-1j * k)) * sinc).mean(axis=1)
-
-
-class TrackPredictor:
-    """Linear prediction of a mark's column from its recent track (as core.tracking.predict).
-
-    The same recurrence ``x[n] = sum a_i x[n - i] + b`` fitted by least squares over the last
-    ``history`` frames, vectorised; constant velocity, then the last position, with less.
-    """
-
-    def __init__(self, order: int = 4, history: int = 60):
-        """Keep ``history`` frames and fit a recurrence of ``order`` past values."""
-        self.order = int(order)
-        self._track: deque[float] = deque(maxlen=int(history))
-
-    def reset(self) -> None:
-        """Forget the track."""
-        self._track.clear()
-
-    def add(self, column: float) -> None:
-        """Append this frame's column (NaN when the mark was lost)."""
-        self._track.append(float(column))
-
-    def predict(self) -> Prediction | None:
-        """Return the prediction for the next frame, or None without any recent position."""
-        track = np.array(self._track)
-        if track.size == 0 or not math.isfinite(track[-1]):
-            return None
-        previous = float(track[-1])
-        before = float(track[-2]) if track.size >= 2 else math.nan
-        p = self.order
-        if track.size > 3 * (p + 1) and np.all(np.isfinite(track[-p:])):
-            windows = sliding_window_view(track, p + 1)
-            windows = windows[np.all(np.isfinite(windows), axis=1)]
-            if len(windows) >= 3 * (p + 1):
-                design = np.column_stack([windows[:, -2::-1], np.ones(len(windows))])
-                goal = windows[:, -1]
-                coef, *_ = np.linalg.lstsq(design, goal, rcond=None)
-                residual = goal - design @ coef
-                spread = math.sqrt(float(residual @ residual) / max(len(goal) - p - 1, 1))
-                recent = track[-p:][::-1]
-                column = float(coef[:-1] @ recent + coef[-1])
-                following = float(coef[:-1] @ np.concatenate([[column], recent[:-1]])
-                                  + coef[-1])
-                return Prediction(column, following, previous, before, max(spread, 0.05))
-        if math.isfinite(before):
-            velocity = previous - before
-            return Prediction(previous + velocity, previous + 2 * velocity, previous, before,
-                              math.inf)
-        return Prediction(previous, previous, previous, before, math.inf)
 
 
 class PlateModel:

@@ -13,6 +13,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 
 class Prediction(NamedTuple):
@@ -43,19 +44,18 @@ class MotionPredictor:
 
     def _recurrence(self, track):
         p = self.order
-        rows, targets = [], []
-        for n in range(p, track.size):
-            window = track[n - p:n + 1]
-            if np.all(np.isfinite(window)):
-                rows.append(np.append(window[:-1][::-1], 1.0))
-                targets.append(window[-1])
-        if len(rows) < 3 * (p + 1):
+        if track.size <= p:
             return None
-        design, goal = np.array(rows), np.array(targets)
+        windows = sliding_window_view(track, p + 1)
+        windows = windows[np.all(np.isfinite(windows), axis=1)]
+        if len(windows) < 3 * (p + 1):
+            return None
+        design = np.column_stack([windows[:, -2::-1], np.ones(len(windows))])
+        goal = windows[:, -1]
         scale = max(float(np.std(goal)), 1.0)
         coef, *_ = np.linalg.lstsq(design, goal, rcond=None)
         residual = goal - design @ coef
-        spread = math.sqrt(float(residual @ residual) / max(len(targets) - p - 1, 1))
+        spread = math.sqrt(float(residual @ residual) / max(len(goal) - p - 1, 1))
         return coef, spread, scale
 
     def predict(self) -> Prediction | None:
@@ -65,9 +65,9 @@ class MotionPredictor:
             return None
         previous = track[-1]
         before = track[-2] if track.size >= 2 else math.nan
-        fitted = self._recurrence(track)
         p = self.order
-        if fitted is not None and np.all(np.isfinite(track[-p:])):
+        fitted = self._recurrence(track) if np.all(np.isfinite(track[-p:])) else None
+        if fitted is not None:
             coef, spread, _ = fitted
             recent = list(track[-p:][::-1])
             column = float(np.dot(coef[:-1], recent) + coef[-1])
