@@ -12,11 +12,18 @@ import math
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter1d
+from scipy.ndimage import gaussian_filter, gaussian_filter1d
+from tracking_scenes import SceneSpec, plates
+from tracking_scenes import render as render_scene
 
 from microball_ros.core.tracking import TrackerConfig, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
-from microball_ros.core.tracking.plate import PlateMarkTracker, plate_is_textured, texture_score
+from microball_ros.core.tracking.plate import (
+    PlateMarkTracker,
+    plate_is_textured,
+    row_flat_field,
+    texture_score,
+)
 from microball_ros.core.tracking.plate_model import kernel_derivatives
 from microball_ros.core.tracking.template import kernel_spectrum
 import microball_ros.core.tracking.tracker as tracker_module
@@ -177,3 +184,58 @@ def test_bars_under_a_texture_fixed_in_the_image(monkeypatch):
     assert lost <= 1
     assert rms <= 0.1
     assert worst <= 0.3
+
+
+def test_a_textured_plate_seen_through_a_pattern_fixed_in_the_image():
+    """A cross on a plate with a texture of its own, behind a window fixed in the image.
+
+    The centroid tracker learns the window (a static background); the plate's own texture is
+    then learned on the frames without it. Measured 0.079 / 0.069 px RMS; before the plate
+    was learned under a static background it was 0.25 / 0.94 px (the centroid alone).
+    """
+    spec = SceneSpec(plates=plates(shape='cross', width=40.0, height=40.0, texture=8.0),
+                     static_transmission=0.03)
+    scene = render_scene(spec, 90, seed=5)
+    result = track(scene.frames, scene.rois, 1e-6, fps=30.0)
+    for name, truth in scene.truth.items():
+        error = result.position_px[name] - truth
+        assert np.all(np.isfinite(error)), name
+        assert float(np.sqrt(np.mean(error ** 2))) < 0.12, name
+        assert np.max(np.abs(error)) < 0.4, name
+
+
+def _moving_texture_frames(pattern, n=60, h=20, w=240, seed=4):
+    """Frames of a 2-D random texture moving along x, times ``pattern`` fixed in the image."""
+    rng = np.random.default_rng(seed)
+    grain = gaussian_filter(rng.standard_normal((h, 3 * w)), 2.0)
+    plate = 1 + 0.05 * grain / grain.std()
+    positions = rng.uniform(40, w - 40, n)
+    frames = []
+    for s in positions:
+        start = int(round(s))
+        moved = plate[:, w - start:2 * w - start]
+        frames.append(100.0 * pattern * moved + rng.normal(0, 0.3, (h, w)))
+    return frames, positions
+
+
+def test_row_flat_field_finds_a_pattern_that_differs_between_rows():
+    h, w = 20, 240
+    rng = np.random.default_rng(8)
+    dust = gaussian_filter(rng.standard_normal((h, w)), 4.0)
+    pattern = 1 + 0.03 * dust / dust.std()
+    weights = np.full(h, 1.0 / h)
+    frames, positions = _moving_texture_frames(pattern)
+    flat = row_flat_field(frames, weights, positions, np.full(positions.size, 30.0))
+    assert flat is not None
+    truth = pattern / (weights @ pattern)  # the row-weighted mean of each column is 1
+    assert np.allclose(weights @ flat, 1.0)
+    # What is left is mostly the texture's mean over the frames (measured: the pattern's RMS
+    # 0.023 brought down to 0.012; correlation 0.86 with the truth).
+    left = float(np.std(flat - truth))
+    assert left < 0.6 * float(np.std(truth - 1)), left
+    assert np.corrcoef((flat - 1).ravel(), (truth - 1).ravel())[0, 1] > 0.75
+    # Without a pattern, what the texture leaves in the means stays small (measured 0.010:
+    # each row's texture averaged over the part of the plate the column saw).
+    plain, positions = _moving_texture_frames(np.ones((h, w)))
+    flat = row_flat_field(plain, weights, positions, np.full(positions.size, 30.0))
+    assert flat is None or float(np.std(flat - 1)) < 0.015

@@ -161,6 +161,11 @@ class CentroidMarkTracker:
         return covered
 
     @property
+    def background(self) -> StaticBackground:
+        """Return the static background (its ``inverse`` None when none was learned)."""
+        return self._background
+
+    @property
     def learned(self) -> dict:
         """Return what was learned: the polarity, the static background, the mark's rows."""
         learned: dict = {'polarity': self.polarity} if self.polarity else {}

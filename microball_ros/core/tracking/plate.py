@@ -46,6 +46,7 @@ import math
 
 import numpy as np
 
+from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
@@ -56,12 +57,13 @@ from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent, locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
 
-TEXTURE_SCORE = 0.5
+TEXTURE_SCORE = 0.1
 ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 LIGHT_ORDER = 2  # the light per frame over the ROI: a polynomial of this degree
 LIGHT_FLANK = 48.0  # while tracking, from this many px on either side of the mark
+MIN_FLAT_GAIN = 0.5
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -141,11 +143,51 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     return level
 
 
+def row_flat_field(regions, weights, positions, spans, guard=8.0):
+    """Return the ROI's static pattern across its rows (h x w, row-weighted mean 1), or None.
+
+    A pattern fixed in the image that differs between rows (dust, a sensor's pixel response)
+    does not divide out of the row-weighted profile: under a mark that also differs between
+    rows (a cross) it leaves an error that follows the mark's place in the image. Per pixel,
+    the mean over the frames of the pixel over its column's profile, with the columns the
+    mark spans (plus ``guard``, at ``positions``, ROI columns) left out; the plate's own
+    texture, at another place in every frame, averages out. None when what is left is not
+    above what the texture and the noise leave in the means.
+    """
+    stack = np.array(regions, dtype=np.float64)
+    profiles = np.einsum('r,nrw->nw', weights, stack)
+    ratio = stack / profiles[:, None, :]
+    columns = np.arange(stack.shape[2])
+    for n, (p, span) in enumerate(zip(positions, spans, strict=True)):
+        if math.isfinite(p):
+            ratio[n][:, np.abs(columns - p) <= 0.5 * span + guard] = np.nan
+        else:
+            ratio[n] = np.nan
+    with np.errstate(all='ignore'):
+        flat = np.nanmean(ratio, axis=0)
+        halves = np.nanmean(ratio[0::2], axis=0), np.nanmean(ratio[1::2], axis=0)
+        count = np.count_nonzero(np.isfinite(ratio), axis=0)
+    known = np.isfinite(flat) & np.isfinite(halves[0]) & np.isfinite(halves[1]) & (count >= 8)
+    if np.count_nonzero(known) < 0.5 * known.size:
+        return None
+    # Shrunk towards 1 by the Wiener factor: the pattern is what the means over the even and
+    # the odd frames share; the texture and the noise, at other places in each, they do not.
+    deviation = np.where(known, flat - 1.0, 0.0)
+    power = float(np.mean(deviation[known] ** 2))
+    shared = float(np.mean(((halves[0] - 1.0) * (halves[1] - 1.0))[known]))
+    gain = min(shared / power, 1.0) if power > 0 else 0.0
+    if gain < MIN_FLAT_GAIN:
+        return None
+    flat = 1.0 + gain * deviation
+    return flat / (weights @ flat)
+
+
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
                       threshold: float = TEXTURE_SCORE) -> bool:
     """Return True if the plate around the mark carries a texture (``texture_score``).
 
-    Plain plates score within about 0.05 of 0, the textured and speckled ones 0.95 or more.
+    Plain plates score within about 0.05 of 0, textured and speckled ones 0.5 (a fine grain,
+    1.5 px) to 0.97: the threshold is between, where a weak texture still beats the centroid.
     """
     return texture_score(regions, marks) >= threshold
 
@@ -169,11 +211,14 @@ class PlateMarkTracker:
         self.texture = 0.0
         self.weights: np.ndarray | None = None
         self.static: np.ndarray | None = None
+        self.flat: np.ndarray | None = None
+        self._background: StaticBackground | None = None
         self._half = 8.0
         self._outer = 8.0
         self._full: PlateModel | None = None
         self._shift = 0.0
         self._rms = 1.0
+        self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
         self._predictor = MotionPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
 
@@ -208,6 +253,11 @@ class PlateMarkTracker:
         self._fallback.reset()
         self._fallback.polarity = polarity
 
+    def _region(self, frame):
+        """Return the ROI of ``frame``, without the static background if one was learned."""
+        region = roi_region(frame, self.roi, self.name)
+        return region if self._background is None else self._background.apply(region)
+
     # -- learning --------------------------------------------------------------------------
     def prime(self, frames) -> None:
         """Learn the polarity, whether the plate is textured, and if so the plate; restart."""
@@ -215,9 +265,11 @@ class PlateMarkTracker:
         self._fallback.prime(frames)
         if self.polarity is None or len(frames) < 12:
             return
-        if 'static_background' in self._fallback.learned:
-            return  # a texture fixed in the image: the centroid tracker removes it
-        regions = [roi_region(frame, self.roi, self.name) for frame in frames]
+        # A pattern fixed in the image, which the centroid tracker learned, is divided out
+        # first: the plate may carry a texture of its own as well.
+        self._background = (self._fallback.background
+                            if 'static_background' in self._fallback.learned else None)
+        regions = [self._region(frame) for frame in frames]
         x = self.roi[0]
         sample, marks = [], []
         for region, frame in zip(regions, frames, strict=True):
@@ -235,16 +287,58 @@ class PlateMarkTracker:
         if self.texture < TEXTURE_SCORE:
             return
         self._learn(regions)
+        if self.plate is not None:
+            self._relearn(regions, frames)
         self.reset()
 
-    def _learn(self, regions) -> None:
-        """Learn row weights, static field and plate; leave ``plate`` None on failure."""
+    def _relearn(self, regions, frames) -> None:
+        """Learn the plate again from the positions and kernels the learned plate measures.
+
+        The first positions (dip centroids) can be pixels off on a texture; the rounds of the
+        solver then stop short of the plate. Measured with the first plate (search and full
+        fit), the positions start within a fraction of a pixel, so the second plate is sharp.
+        Kept only if it fits the frames better (median residual).
+        """
+        self.reset()
+        x = self.roi[0]
+        positions = np.full(len(frames), np.nan)
+        kernels = np.full((len(frames), 2), np.nan)
+        spans = np.full(len(frames), np.nan)
+        for n, frame in enumerate(frames):
+            m = self.measure(frame)
+            if m.valid and self._kernel is not None:
+                positions[n] = m.position_px - x
+                kernels[n] = self._kernel
+                spans[n] = self._span(self._kernel[0], self._kernel)
+        if np.count_nonzero(np.isfinite(positions)) < 8:
+            return
+        before = (self.plate, self._full, self._shift, self._outer, self.static, self._rms,
+                  self.weights, self._half, self.flat)
+        self.flat = row_flat_field(regions, self.weights, positions, spans)
+        if self.flat is not None:
+            regions = [r / self.flat for r in regions]
+        self._learn(regions, (positions, kernels))
+        if self.plate is None or not self._rms <= before[5]:
+            (self.plate, self._full, self._shift, self._outer, self.static, self._rms,
+             self.weights, self._half, self.flat) = before
+
+    def _learn(self, regions, start=None) -> None:
+        """Learn row weights, static field and plate; leave ``plate`` None on failure.
+
+        ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
+        instead of the dip centroids and kernels from neighbouring frames.
+        """
         cfg = self.config
         w = self.roi[2]
         polarity = self.polarity
         if polarity is None:
             return
+        self.plate = None
         positions, extents = self._first_positions(regions)
+        if start is not None:
+            positions = np.array(start[0], dtype=float)
+            typical = float(np.nanmedian(extents)) if np.any(np.isfinite(extents)) else 0.0
+            extents = np.where(np.isfinite(extents), extents, typical)
         found = [row_weights(r, int(p - e / 2), int(p + e / 2), cfg.pad_px, polarity)
                  for r, p, e in zip(regions, positions, extents, strict=True)
                  if math.isfinite(p)]
@@ -272,12 +366,17 @@ class PlateMarkTracker:
         self._half = 0.5 * float(np.nanpercentile(extents, 10))
         f = self.exposure_fraction
         kernels = np.full((positions.size, 2), np.nan)
-        for i in range(1, positions.size - 1):
-            before, middle, after = positions[i - 1:i + 2]
-            kernels[i] = (abs(after - before) / 2 * f, (after - 2 * middle + before) * f * f / 2)
+        if start is not None:
+            kernels = np.array(start[1], dtype=float)
+        else:
+            for i in range(1, positions.size - 1):
+                before, middle, after = positions[i - 1:i + 2]
+                kernels[i] = (abs(after - before) / 2 * f,
+                              (after - 2 * middle + before) * f * f / 2)
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
-        rms = solver.learn(positions, kernels, reach + 8.0, ROUNDS)
+        rms = solver.learn(positions, kernels, reach + 8.0,
+                           ROUNDS)
         if solver.plate is None:
             return
         center = solver.plate.mark_center(reach)
@@ -380,7 +479,9 @@ class PlateMarkTracker:
             return self._fallback.measure(frame)
         cfg = self.config
         w = self.roi[2]
-        region = roi_region(frame, self.roi, self.name)
+        region = self._region(frame)
+        if self.flat is not None:
+            region = region / self.flat
         profile = self.weights @ region.astype(np.float64)
         if not np.all(np.isfinite(profile)):
             return self._invalid('non-finite pixels')
@@ -448,6 +549,7 @@ class PlateMarkTracker:
             reason = 'mark area changed' if min(q_gain, q_match) < q_snr else 'low contrast'
             return self._invalid(reason, quality, contrast=peak)
         self._predictor.add(position)
+        self._kernel = (blur, curve)
         return MarkMeasurement(position + self.roi[0], quality, sigma_px=sigma, contrast=peak,
                                extent_px=2.0 * extent)
 
@@ -499,4 +601,5 @@ class PlateMarkTracker:
 
     def _invalid(self, reason, quality=0.0, contrast=math.nan):
         self._predictor.add(math.nan)
+        self._kernel = None
         return MarkMeasurement(math.nan, quality, contrast=contrast, reason=reason)
