@@ -22,7 +22,10 @@ when the frames' scatter about it is correlated between neighbouring columns bey
 ``MAX_CORRELATION`` (noise is not; a texture moving past is, even one moving periodically,
 whose mean keeps pixel-scale structure).
 Pixels the mark covered in too many priming frames (a mark that hardly moves) get no fine
-correction. Learned once; not updated while tracking.
+correction. The fine part is divided out (a transmission) or subtracted (light added, scaled
+by the frame's level), whichever keeps the mark's integrated deficit steadier over the
+priming frames (``area_scatter``): the wrong one leaves the pattern, darkened by the mark,
+on it. Learned once; not updated while tracking.
 """
 
 import math
@@ -38,7 +41,6 @@ MIN_GAIN = 0.5
 MIN_STRUCTURE = 0.25
 MAX_CORRELATION = 0.5
 PROVISIONAL_FRAMES = 15
-RESIDUAL_FRAMES = 20
 CLIP_SIGMA = 4.0
 
 
