@@ -332,3 +332,51 @@ def test_static_background_is_learned_only_for_a_pattern_fixed_in_the_image(
         corrected = window * background.inverse
         assert np.std(corrected / corrected.mean()) < 0.004
         assert background.kind == 'divided'
+
+
+@pytest.mark.parametrize('multiplicative', [1.0, 0.0])
+@pytest.mark.parametrize('grain', [0.7, 1.5])
+def test_static_pattern_is_divided_when_a_transmission_and_subtracted_when_light_added(
+        multiplicative, grain):
+    # A pair of bars (60 % deep) moving 4 Hz at 60 fps under a fine pattern fixed in the image
+    # (12 % std): a transmission darkens with the mark, light added does not. The learner
+    # must tell them apart (by the spread of the mark's integrated deficit over the priming
+    # frames), and what it removes must leave the mark's columns flat to the noise.
+    import cv2
+
+    from microball_ros.core.tracking.background import StaticBackground, area_scatter
+
+    rng = np.random.default_rng(7)
+    h, w, level = 60, 300, 160.0
+    pattern = cv2.GaussianBlur(rng.standard_normal((h, w)).astype(np.float32), (0, 0), grain)
+    pattern *= 0.12 / pattern.std()
+    columns = np.arange(w)
+    frames, covered = [], np.zeros((60, w), dtype=bool)
+    for i in range(60):
+        center = 150 + 110 * np.sin(2 * np.pi * i / 15 + 0.3)
+        mark = np.ones(w)
+        for offset in (-10, 10):
+            mark -= 0.6 * np.clip(np.minimum(columns - (center + offset - 3) + 0.5,
+                                             center + offset + 3 - columns + 0.5), 0, 1)
+        mark = np.tile(mark, (h, 1))
+        mark[:12] = mark[-12:] = 1
+        a = multiplicative
+        frames.append(level * mark * (1 + a * pattern) + (1 - a) * level * pattern
+                      + rng.standard_normal((h, w)))
+        covered[i, int(center - 25):int(center + 26)] = True
+    frames = np.array(frames, dtype=np.float32)
+    background = StaticBackground()
+    background.learn(frames, covered)
+    assert background.kind == ('divided' if multiplicative else 'subtracted')
+    # The other way leaves the pattern on the mark: its integrated deficit spreads at least
+    # 1.3 times as much over the frames.
+    if multiplicative:
+        other = area_scatter(frames, covered, level * pattern, np.ones((h, w), np.float32),
+                             level)
+        own = area_scatter(frames, covered, None, background.inverse, level)
+    else:
+        other = area_scatter(frames, covered, None,
+                             (1.0 / (1.0 + pattern)).astype(np.float32), level)
+        own = area_scatter(frames, covered, background.added, background.inverse,
+                           background.reference)
+    assert other > 1.3 * own, (other, own)

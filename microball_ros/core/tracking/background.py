@@ -22,7 +22,10 @@ when the frames' scatter about it is correlated between neighbouring columns bey
 ``MAX_CORRELATION`` (noise is not; a texture moving past is, even one moving periodically,
 whose mean keeps pixel-scale structure).
 Pixels the mark covered in too many priming frames (a mark that hardly moves) get no fine
-correction. Learned once; not updated while tracking.
+correction. The fine part is divided out (a transmission) or subtracted (light added, scaled
+by the frame's level), whichever keeps the mark's integrated deficit steadier over the
+priming frames (``area_scatter``): the wrong one leaves the pattern, darkened by the mark,
+on it. Learned once; not updated while tracking.
 """
 
 import math
@@ -38,7 +41,6 @@ MIN_GAIN = 0.5
 MIN_STRUCTURE = 0.25
 MAX_CORRELATION = 0.5
 PROVISIONAL_FRAMES = 15
-RESIDUAL_FRAMES = 20
 CLIP_SIGMA = 4.0
 
 
@@ -198,12 +200,13 @@ class StaticBackground:
         fine = np.where(known, gain * texture, 0.0)
         inverse = (1.0 / np.maximum(flat * (1.0 + fine), 1e-3)).astype(np.float32)
         # The fine part as light added (scratches, glare) rather than a transmission: in the
-        # flat field's units, scaled by each frame's gain. Whichever leaves less fine
-        # structure on the mark in the priming frames is kept.
+        # flat field's units, scaled by each frame's gain. The two differ only on the mark,
+        # where a transmission is darkened with it and added light is not: which one the
+        # frames show is measured there (``area_scatter``).
         flat_inverse = (1.0 / np.maximum(flat, 1e-3)).astype(np.float32)
         added = (level * fine).astype(np.float32)
         reference = float(np.mean(regions * flat_inverse))
-        if _residual(regions, covered, added, flat_inverse, reference) < _residual(
+        if area_scatter(regions, covered, added, flat_inverse, reference) < area_scatter(
                 regions, covered, None, inverse, reference):
             self.inverse, self.added, self.reference = flat_inverse, added, reference
         else:
@@ -211,21 +214,32 @@ class StaticBackground:
         self.gain = gain
 
 
-def _residual(regions: np.ndarray, covered: np.ndarray, added: np.ndarray | None,
-              inverse: np.ndarray, reference: float) -> float:
-    """Return the fine structure (energy above a 1 px Gaussian) left on the mark's columns."""
+def area_scatter(regions: np.ndarray, covered: np.ndarray, added: np.ndarray | None,
+                 inverse: np.ndarray, reference: float) -> float:
+    """Return the spread over the priming frames of the mark's integrated deficit.
+
+    Per frame where the mark was located: the ROI corrected by ``inverse`` (and ``added``,
+    scaled by the frame's level over ``reference``), its column means, and the deficit
+    summed over the mark's columns against the median of the others. Blur and position do
+    not change that sum; a pattern removed the wrong way (a transmission subtracted, or
+    light added divided) leaves the pattern darkened by the mark on it, which does, frame by
+    frame as the mark moves over it. The spread is the median absolute deviation.
+    """
     located = np.flatnonzero(covered.any(axis=1) & ~covered.all(axis=1))
-    energy = 0.0
-    for i in located[::max(located.size // RESIDUAL_FRAMES, 1)]:
-        columns = covered[i]
-        corrected = regions[i][:, columns] * inverse[:, columns]
+    areas = []
+    for i in located:
+        corrected = regions[i] * inverse
         if added is not None:
-            corrected = corrected - float(np.mean(regions[i] * inverse)) / reference * added[
-                :, columns]
-        fine = corrected - cv2.GaussianBlur(corrected, (0, 0), 1.0,
-                                            borderType=cv2.BORDER_REFLECT)
-        energy += float(np.sum(fine.astype(np.float64) ** 2))
-    return energy
+            corrected = corrected - float(np.mean(corrected)) / reference * added
+        profile = corrected.mean(axis=0, dtype=np.float64)
+        columns = covered[i]
+        level = float(np.median(profile[~columns]))
+        if level > 0:
+            areas.append(float(np.sum(level - profile[columns])) / level)
+    if len(areas) < 3:
+        return math.inf
+    areas_array = np.array(areas)
+    return float(np.median(np.abs(areas_array - np.median(areas_array))))
 
 
 def _neighbour_correlation(residual: np.ndarray, use: np.ndarray) -> float:
