@@ -6,7 +6,8 @@ writes three bags, each a node's input topics and the outputs the real node (its
 script, as a process) published for them, replayed lock-step by microball_ros.testing.replay:
 
 - ``camera_tracker/``: FRAMES synthetic camera frames of the paper scenario (a small
-  WIDTH x HEIGHT camera, so the bag stays small) -> /tracking/positions
+  WIDTH x HEIGHT camera, so the bag stays small) -> /tracking/positions (the node primed on
+  those FRAMES frames: tracker_parameters)
 - ``three_stage_estimator/``: the positions camera_tracker publishes for POSITION_FRAMES
   such frames -> /estimation/derivatives (one message a window)
 - ``friction_identifier/``: those derivatives -> /friction/model (one refit a window)
@@ -49,13 +50,20 @@ def camera():
 
 
 def tracker_parameters():
-    """Return camera_tracker's parameters for the small camera."""
+    """Return camera_tracker's parameters for the small camera.
+
+    ``prime_frames`` is FRAMES: the tracker sample's node learns the marks from exactly its
+    FRAMES frames, when the last one arrives, and then publishes them, so no replay of it
+    waits for the node's prime_timeout (a wall-clock pause; the default 60 frames would need
+    one in every replay). The estimator's POSITION_FRAMES positions are tracked with the same
+    parameters, so their first FRAMES are the tracker sample's outputs.
+    """
     from microball_ros.core import rig
 
     scenario, config = camera()
     rois = rig.suggested_rois(scenario, config)
     return {'slider_roi': list(rois['slider']), 'stator_roi': list(rois['stator']),
-            'meters_per_pixel': config.meters_per_pixel}
+            'meters_per_pixel': config.meters_per_pixel, 'prime_frames': FRAMES}
 
 
 def write_frames(path, count):

@@ -13,12 +13,35 @@ it reliable, as lock-step replay does), in any encoding io.video reads (mono8/16
 bayer_*). A frame of another size than the first, an unknown encoding, data shorter than
 height x step, a stamp going backwards or a frame from a second camera is dropped, logged once
 per kind and counted on /diagnostics; the node keeps tracking the good frames after it.
+
+Priming, as ``microball track`` does (core.tracking.track): the node keeps the first
+``prime_frames`` good frames (60 by default), learns the marks from them (the mark, a static
+background, and on a plate whose texture moves with the mark the learned plate:
+Tracker.prime), then tracks and publishes every kept frame in order, each with its own stamp,
+frame_id and debug image, and then each new frame as it comes. Its positions for a sequence of
+frames are therefore those ``track(frames, rois, meters_per_pixel, 30.0, times=stamps)``
+returns, value for value (topic mode assumes an exposure of half the frame period, as that
+call does without ``exposure``). The price: positions are published late by up to
+``prime_frames`` frames, once: a camera at 30 fps gets nothing for the first 2 s, then those
+2 s of positions together. /diagnostics says 'priming: n/60 frames' meanwhile. A video
+(``video_path``) shorter than ``prime_frames`` is primed on all its frames at its end. The
+kept frames are held in memory (60 frames of 720 x 480 mono8: 21 MB); ``prime_frames`` 0
+publishes each frame at once, unprimed (as before priming existed).
+
+Only one thing here depends on timing: if the images pause before ``prime_frames`` frames
+have come (no frame for ``prime_timeout`` s of wall-clock time: a short stream, a camera
+stopped), the node primes on the frames it has, publishes them, warns once in the log and on
+/diagnostics ('primed on N of M frames: the images paused') and then streams; otherwise a
+stream that stops early would keep its frames forever. Every other output is a function of
+the ordered frames and the parameters.
 """
 
 import sys
 
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from microball_msgs.msg import TrackedPositions
 import numpy as np
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from sensor_msgs.msg import Image
 
@@ -70,6 +93,14 @@ PARAMS = {
     'expected_publishers': Param(1, 'cameras expected on camera/image_raw; frames from more '
                                     'are dropped as foreign (0: accept any)', 0, 100,
                                  read_only=True),
+    'prime_frames': Param(TrackerConfig().prime_frames,
+                          'learn the marks from this many first frames, then track them and '
+                          'every later frame (as microball track does; their positions come '
+                          'that many frames late); 0 publishes each frame at once, unprimed',
+                          0, 100000, read_only=True),
+    'prime_timeout': Param(1.0, 'wall-clock seconds without a frame after which the node '
+                                'primes on the frames it has (images paused before '
+                                'prime_frames)', 0.01, 3600.0, read_only=True),
 }
 
 
@@ -118,8 +149,40 @@ def debug_image(frame, rois, positions_px, labels=None):
     return draw_tracking(frame, rois, positions_px, labels=labels)
 
 
+class TrackerDiagnostics(NodeDiagnostics):
+    """NodeDiagnostics plus the priming state: 'priming: n/M frames', then how it ended.
+
+    While the node learns, the status message says so; a priming cut short by a pause of the
+    images is a warning for one period (the 'priming' value keeps saying it).
+    """
+
+    def __init__(self, node, **kwargs):
+        self.priming = ''
+        self._warning = ''
+        super().__init__(node, **kwargs)
+
+    def warn(self, text):
+        """Log ``text`` and publish it as a warning in the next period's status."""
+        self._node.get_logger().warning(text)
+        self._warning = text
+
+    def status(self):
+        """Return NodeDiagnostics' status with the priming state added."""
+        status = super().status()
+        if self.priming:
+            status.values.append(KeyValue(key='priming', value=self.priming))
+            if self.priming.startswith('priming') and status.message == 'ok':
+                status.message = f'learning the marks: {self.priming}'
+        if self._warning:
+            status.level = max(status.level, DiagnosticStatus.WARN)
+            status.message = (self._warning if status.message == 'ok'
+                              else f'{self._warning}; {status.message}')
+            self._warning = ''
+        return status
+
+
 class CameraTracker(Node):
-    """Track the two marks in every frame and publish their positions."""
+    """Track the two marks in every frame and publish their positions (primed first)."""
 
     def __init__(self, **kwargs):
         super().__init__('camera_tracker', **kwargs)
@@ -129,16 +192,29 @@ class CameraTracker(Node):
         values = self._values
         self._rois = {'slider': tuple(values['slider_roi']),
                       'stator': tuple(values['stator_roi'])}
+        self._config = TrackerConfig(polarity=values['polarity'],
+                                     prime_frames=values['prime_frames'])
         self._tracker = None
         self._frame_size = None
         self._frames = 0
-        self.diagnostics = NodeDiagnostics(self)
+        # Frames kept until the tracker is primed: (frame, stamp s or None, frame_id).
+        self._held = []
+        self._primed = values['prime_frames'] == 0
+        self.diagnostics = TrackerDiagnostics(self)
         self._publisher = create_publisher(self, TrackedPositions, 'tracking/positions',
                                            DATA_QOS)
         self._debug = self.create_publisher(Image, 'tracking/debug_image', 10)
+        if not self._primed:
+            self.diagnostics.priming = f'priming: 0/{values["prime_frames"]} frames'
         if values['video_path']:
             self._open_video(values)
-        elif values['wait_for_subscribers']:
+            return
+        if not self._primed:
+            # The one wall-clock dependence: images that pause before prime_frames.
+            self._pause_timer = self.create_timer(
+                values['prime_timeout'], self._on_pause, clock=Clock(
+                    clock_type=ClockType.STEADY_TIME), autostart=False)
+        if values['wait_for_subscribers']:
             self._waiting = self.create_timer(0.01, self._subscribe_when_matched)
         else:
             self._subscribe()
@@ -147,6 +223,16 @@ class CameraTracker(Node):
     def frames_dropped(self):
         """Return how many frames were dropped (any kind; /diagnostics has them by kind)."""
         return sum(self.diagnostics.drops.values())
+
+    @property
+    def frames_held(self):
+        """Return how many frames wait for the tracker to be primed."""
+        return len(self._held)
+
+    @property
+    def primed(self):
+        """Return True once the tracker has learned the marks (always with prime_frames 0)."""
+        return self._primed
 
     def _subscribe(self):
         guard = InputGuard(self, self.diagnostics, 'camera/image_raw',
@@ -170,8 +256,7 @@ class CameraTracker(Node):
         if not fps:
             raise InputError(f"{values['video_path']}: unknown frame rate; set video_fps")
         self._tracker = Tracker(self._rois, values['meters_per_pixel'], fps,
-                                values['video_exposure'] or None,
-                                config=TrackerConfig(polarity=values['polarity']),
+                                values['video_exposure'] or None, config=self._config,
                                 frame_size=self._video.frame_size)
         self._video_frames = iter(self._video)
         self._video_timer = self.create_timer(1.0 / (fps * values['video_speed']),
@@ -181,30 +266,75 @@ class CameraTracker(Node):
         frame = next(self._video_frames, None)
         if frame is None:
             self._video_timer.cancel()
+            if not self._primed:  # a video shorter than prime_frames: prime on all of it
+                self._prime()
             self.get_logger().info(f'video finished after {self._frames} frames')
             return
-        result = self._tracker.process(frame)
-        self._publish(result, frame, conversions.seconds_to_stamp(result.time),
-                      self._values['frame_id'])
+        self._take(frame, None, self._values['frame_id'])
 
     def _on_image(self, msg):
         try:
             frame = conversions.image_array(msg)
             if self._tracker is None:
                 self._tracker = Tracker(self._rois, self._values['meters_per_pixel'],
-                                        config=TrackerConfig(polarity=self._values['polarity']),
+                                        config=self._config,
                                         frame_size=(msg.width, msg.height))
                 self._frame_size = (msg.width, msg.height)
         except InputError as error:  # e.g. ROIs outside the first frame: every frame fails
             self.diagnostics.dropped('untrackable frame', str(error))
             return
         stamp = conversions.stamp_to_seconds(msg.header.stamp) + self._values['stamp_offset']
+        if not self._primed:
+            self._pause_timer.reset()
+        self._take(frame, stamp, msg.header.frame_id)
+
+    def _take(self, frame, stamp, frame_id):
+        """Track and publish a frame, or hold it until prime_frames frames are held."""
+        if self._primed:
+            self._track(frame, stamp, frame_id)
+            return
+        self._held.append((frame, stamp, frame_id))
+        wanted = self._values['prime_frames']
+        self.diagnostics.priming = f'priming: {len(self._held)}/{wanted} frames'
+        if len(self._held) >= wanted:
+            self._prime()
+
+    def _on_pause(self):
+        """No image for prime_timeout s: prime on the held frames rather than keep them."""
+        self._pause_timer.cancel()
+        if self._primed or not self._held:
+            return
+        wanted = self._values['prime_frames']
+        self.diagnostics.warn(f'primed on {len(self._held)} of {wanted} frames: the images '
+                              f'paused (no frame for {self._values["prime_timeout"]:g} s)')
+        self._prime()
+
+    def _prime(self):
+        """Learn the marks from the held frames, then track and publish each of them."""
+        held, self._held = self._held, []
+        self._primed = True
+        if not self._values['video_path']:
+            self._pause_timer.cancel()
+        wanted = self._values['prime_frames']
+        try:
+            self._tracker.prime([frame for frame, _, _ in held])
+        except Exception as error:  # noqa: B902 - track unprimed rather than stop a lab's run
+            self.diagnostics.error(f'priming on {len(held)} frames failed, tracking without '
+                                   f'it: {error!r}')
+        self.diagnostics.priming = (f'primed on {len(held)} frames' if len(held) >= wanted
+                                    else f'primed on {len(held)} of {wanted} frames')
+        for frame, stamp, frame_id in held:
+            self._track(frame, stamp, frame_id)
+
+    def _track(self, frame, stamp, frame_id):
+        """Track one frame and publish its positions (a frame that fails is counted)."""
         try:
             result = self._tracker.process(frame, stamp)
         except Exception as error:  # noqa: B902 - one bad frame must not stop a lab's run
-            self.diagnostics.error(f'frame at {stamp:.6f} s not tracked: {error!r}')
+            when = f'{stamp:.6f} s' if stamp is not None else f'index {self._tracker.index}'
+            self.diagnostics.error(f'frame at {when} not tracked: {error!r}')
             return
-        self._publish(result, frame, conversions.seconds_to_stamp(stamp), msg.header.frame_id)
+        self._publish(result, frame, conversions.seconds_to_stamp(result.time), frame_id)
 
     def _publish(self, result, frame, stamp, frame_id):
         slider, stator = result.marks['slider'], result.marks['stator']
