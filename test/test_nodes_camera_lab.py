@@ -42,8 +42,10 @@ def test_best_effort_camera_bad_frames_dropped_and_counted_good_ones_tracked(
     # which loopback may drop (a lab's 16-bit camera wants a bigger segment: README).
     x0, y0 = 100, 40
     rois = {name: [x - x0, y - y0, w, h] for name, (x, y, w, h) in video.rois.items()}
+    # Each frame is sent once the last one's position came back, so the node learns the
+    # marks from the first frame alone (priming on many: test_nodes_camera_prime.py).
     node_process('camera_tracker', {'slider_roi': rois['slider'], 'stator_roi': rois['stator'],
-                                    'meters_per_pixel': scale})
+                                    'meters_per_pixel': scale, 'prime_frames': 1})
     probe = ros_harness.probe
     positions, diagnostics = [], []
     probe.create_subscription(TrackedPositions, 'tracking/positions', positions.append,

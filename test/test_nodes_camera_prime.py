@@ -332,3 +332,40 @@ def test_dropped_frames_are_not_held_and_a_failing_frame_is_counted(ros_context,
     assert tracker.diagnostics.counts['errors'] == 1
     assert 'not tracked' in tracker.diagnostics.last_error
     assert tracker.diagnostics.drops == {'image of another size': 1}
+
+
+def test_a_bag_of_frames_is_tracked_offline_as_the_node_tracks_it(textured, tmp_path):
+    """``microball analyze`` of a frames-only bag (io.frames) primes like the node and track()."""
+    from rclpy.serialization import serialize_message
+    import yaml
+
+    from microball_ros.io.bags.reader import open_bag
+    from microball_ros.io.bags.schema import qos_profiles_yaml
+    from microball_ros.io.bags.writer import BagWriter
+    from microball_ros.io.frames import tracked_frames, tracker_parameters
+
+    scene = textured
+    sent, times = _stamps(len(scene.frames))
+    recorded = {'slider_roi': list(scene.rois['slider']),
+                'stator_roi': list(scene.rois['stator']), 'meters_per_pixel': SCALE,
+                'stamp_offset': STAMP_OFFSET}
+    path = str(tmp_path / 'frames')
+    with BagWriter(path, custom_data={
+            'microball.camera_tracker': yaml.safe_dump(recorded)}) as writer:
+        writer.add_topic('/camera/image_raw', 'sensor_msgs/msg/Image',
+                         qos_profiles_yaml([DATA_QOS]))
+        for frame, t in zip(scene.frames, sent, strict=True):
+            stamp_ns = round(t * 1e9)
+            writer.write('/camera/image_raw',
+                         serialize_message(conversions.image_message(frame, t)), stamp_ns,
+                         stamp_ns)
+    bag = open_bag(path)
+    parameters = tracker_parameters(bag)
+    assert parameters['prime_frames'] == 60 and parameters['polarity'] == 'auto'
+    rows = list(tracked_frames(bag, parameters))
+    expected = track(scene.frames, scene.rois, SCALE, 30.0, times=times)
+    assert [row[1] for row in rows] == list(range(len(scene.frames)))
+    for column, name in ((2, 'stator'), (3, 'slider')):
+        assert np.array_equal([row[column] for row in rows], expected.position[name],
+                              equal_nan=True), name
+    assert np.max(np.abs(expected.position_px['slider'] - scene.truth['slider'])) < 0.4

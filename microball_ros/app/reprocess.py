@@ -9,8 +9,9 @@ on their ordered input, so the new messages equal the recorded ones byte for byt
 platform that recorded them (and within relative 1e-9 on another: docs/design.md section 4).
 
 A bag with only /camera/image_raw goes through a fresh camera_tracker first (parameters as in
-frames.tracker_parameters); each frame is published only after the tracker's position for the
-previous one was recorded, so no frame can be dropped however slow the tracker.
+frames.tracker_parameters); a frame is published only while fewer than the tracker's
+``prime_frames`` are without a recorded position (it holds that many while it learns the
+marks), so no frame can be dropped however slow the tracker.
 
 The output bag keeps the parameters the nodes were given and this platform's fingerprint in its
 custom_data, so it can itself be reprocessed. ``check()`` compares the reproduced topics with the
@@ -165,9 +166,13 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
                    'the recorder to connect to the outputs')
         ready = None
         if source == IMAGES_TOPIC:
-            # Frame n + 1 only once the tracker's position for frame n is recorded.
+            # The tracker holds its first prime_frames frames (it learns the marks from
+            # them), then publishes one position a frame: frame n + 1 only once at most
+            # prime_frames - 1 frames are without a recorded position.
+            held = max(int(parameters[TRACKER]['prime_frames']), 1) - 1
+
             def ready():
-                spin_until(lambda: positions_recorded() >= player.published,
+                spin_until(lambda: positions_recorded() >= player.published - held,
                            'the position of the last frame')
         player.play(executor, lockstep=True, ready=ready,
                     progress=lambda n, t: progress(f'replayed {n} messages ({t:.1f} s)'))

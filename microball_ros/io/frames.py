@@ -13,7 +13,13 @@ import itertools
 import numpy as np
 
 from microball_ros.core.records import PositionRecord, check_time_base
-from microball_ros.core.tracking import Tracker, check_roi, check_scale, detect_rois
+from microball_ros.core.tracking import (
+    Tracker,
+    TrackerConfig,
+    check_roi,
+    check_scale,
+    detect_rois,
+)
 from microball_ros.io.bags.reader import BagError, read_frames, recorded_parameters
 
 TRACKER = 'camera_tracker'
@@ -23,7 +29,8 @@ DETECTION_FRAMES = 60
 def tracker_parameters(bag, slider_roi=None, stator_roi=None, meters_per_pixel=None):
     """Return the camera_tracker parameters to track the bag's frames with.
 
-    A dict with slider_roi, stator_roi (x, y, w, h lists), meters_per_pixel and stamp_offset.
+    A dict with slider_roi, stator_roi (x, y, w, h lists), meters_per_pixel, stamp_offset,
+    polarity and prime_frames.
     Given values win over recorded ones. Raise BagError (one line) if the scale is neither
     given nor recorded, or if ROIs must be detected and cannot be.
     """
@@ -33,6 +40,8 @@ def tracker_parameters(bag, slider_roi=None, stator_roi=None, meters_per_pixel=N
     values = {name: value if value is not None else recorded.get(name)
               for name, value in given.items()}
     values['stamp_offset'] = float(recorded.get('stamp_offset', 0.0))
+    values['polarity'] = str(recorded.get('polarity', 'auto'))
+    values['prime_frames'] = int(recorded.get('prime_frames', TrackerConfig().prime_frames))
     if values['meters_per_pixel'] is None:
         raise BagError(f'{bag.path}: the bag has only camera frames and no recorded image '
                        'scale: give --meters-per-pixel (and --slider-roi/--stator-roi)')
@@ -56,19 +65,25 @@ def tracked_frames(bag, parameters):
     """Yield what camera_tracker publishes for each of the bag's frames, tracked in process.
 
     Tuples (stamp_ns, frame_index, stator, slider, slider_quality, stator_quality): the core
-    Tracker with ``parameters``, stamp = header stamp + stamp_offset rounded to the nanosecond
-    (as a message stamp), frame_index counting from 0, NaN for a lost mark.
+    Tracker with ``parameters``, primed on the first ``prime_frames`` frames as the node is
+    (and as core.tracking.track), stamp = header stamp + stamp_offset rounded to the
+    nanosecond (as a message stamp), frame_index counting from 0, NaN for a lost mark.
     """
     rois = {'slider': tuple(parameters['slider_roi']),
             'stator': tuple(parameters['stator_roi'])}
+    config = TrackerConfig(polarity=parameters.get('polarity', 'auto'))
+    frames = read_frames(bag)
+    head = list(itertools.islice(frames, max(int(parameters.get(
+        'prime_frames', config.prime_frames)), 0)))
     tracker = None
-    for stamp, frame in read_frames(bag):
+    for stamp, frame in itertools.chain(head, frames):
         if tracker is None:
             try:
-                tracker = Tracker(rois, parameters['meters_per_pixel'],
+                tracker = Tracker(rois, parameters['meters_per_pixel'], config=config,
                                   frame_size=(frame.shape[1], frame.shape[0]))
             except ValueError as error:
                 raise BagError(f'{bag.path}: {error}') from None
+            tracker.prime([f for _, f in head])
         stamp_ns = round((stamp + parameters['stamp_offset']) * 1e9)
         result = tracker.process(frame, stamp_ns * 1e-9)
         yield (stamp_ns, result.index, result.position('stator'), result.position('slider'),
