@@ -129,6 +129,8 @@ class CentroidMarkTracker:
             if regions is not None:
                 self._background.inverse = StaticBackground.provisional(
                     regions.astype(np.float32))
+                if self._background.inverse is not None and not self._keeps_mark(frames):
+                    self._background.clear()
                 if self._background.inverse is None:
                     regions = None
         if self.polarity is None:
@@ -144,6 +146,47 @@ class CentroidMarkTracker:
             self._background.learn(regions, self._footprints(frames), first)
             self.reset()
             self.polarity = polarity
+            if self._background.inverse is not None and not self._keeps_mark(frames):
+                self._background.clear()
+                self.polarity = None if self.config.polarity == 'auto' else self.polarity
+                for frame in frames:
+                    if self.polarity is not None:
+                        break
+                    self.measure(frame)
+                polarity = self.polarity
+                self.reset()
+                self.polarity = polarity
+
+    def _contrast(self, frames) -> float:
+        """Return the mark's median contrast over ``frames`` (0 where not found); reset."""
+        polarity = self.polarity
+        found = [self.measure(frame) for frame in frames]
+        self.reset()
+        self.polarity = polarity
+        return float(np.median([m.contrast if m.valid and m.contrast > 0 else 0.0
+                                for m in found]))
+
+    def _keeps_mark(self, frames) -> bool:
+        """Return False if the background takes the mark away (a mark that hardly moves).
+
+        A mark that stays over the same pixels in most priming frames is in their median,
+        and so in a background learned from it: divided by it, the frames lose the mark (or
+        show it with the wrong polarity). True if the mark keeps at least half its contrast
+        over the priming frames against the frames as they are (polarity found afresh).
+        """
+        learned = (self._background.inverse, self._background.added,
+                   self._background.reference, self._background.gain)
+        sample = frames[::max(len(frames) // 20, 1)]
+        polarity = self.polarity
+        with_background = self._contrast(sample)
+        self._background.clear()
+        if self.config.polarity == 'auto':
+            self.polarity = None
+        without = self._contrast(sample)
+        (self._background.inverse, self._background.added, self._background.reference,
+         self._background.gain) = learned
+        self.polarity = polarity
+        return with_background >= 0.5 * without
 
     def _footprints(self, frames) -> np.ndarray:
         """Return the columns the mark covers in each frame (all of them where not found)."""
