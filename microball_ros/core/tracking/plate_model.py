@@ -24,24 +24,76 @@ _WIDTH_L = np.diff(_U)
 _WIDTH_Q = np.diff(_U2)
 
 
+_PHASE_WEIGHTS = np.array([np.full(SEGMENTS, 1.0), _MID_L, _MID_Q]) / SEGMENTS
+_SINC_WEIGHTS = np.array([0.5 * _WIDTH_L, 0.5 * _WIDTH_Q]) / SEGMENTS
+_TINY = 1e-100  # stands for 0 in a segment's half-width or at k = 0: sin(z) / z is then 1
+
+
+def _frequencies(k: np.ndarray):
+    """Return what the kernel's derivatives need of ``k``: -ik, and k with no zero."""
+    return -1j * k, np.where(k == 0.0, _TINY, k)
+
+
+def _kernel_parts(k, mik, k_safe, blur, curve):
+    """Return rows: the kernel's spectrum, its d/dx, d/dblur, d/dcurve (``kernel_derivatives``).
+
+    ``mik``, ``k_safe``: from ``_frequencies(k)``.
+    """
+    if blur == 0.0:
+        return _kernel_parts_at_rest(k, mik, curve)
+    mid = blur * _MID_L + curve * _MID_Q
+    half = 0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q)
+    half[np.abs(half) < _TINY] = _TINY
+    z = half[:, None] * k_safe
+    rotor = np.exp(mid[:, None] * mik)
+    sinc = np.sin(z)
+    sinc /= z
+    slope = np.cos(z)
+    slope -= sinc
+    slope /= z  # d sinc / dz
+    common = rotor * sinc
+    slope = rotor * slope
+    parts = np.empty((4, k.size), complex)
+    # The spectrum, and its parts moved by the segments' mids and changed by their widths.
+    np.matmul(_PHASE_WEIGHTS, common, out=parts[1:])
+    width = _SINC_WEIGHTS @ slope
+    width *= k
+    parts[2:] *= mik
+    parts[2:] += width
+    parts[0] = parts[1]
+    parts[1] *= mik
+    return parts
+
+
+def _kernel_parts_at_rest(k, mik, curve):
+    """Return ``_kernel_parts`` for blur 0, rounded exactly as the fits have always had it.
+
+    d/dblur is 0 there (the kernel is even in the blur), so what a Gauss-Newton step from
+    blur 0 does is decided by the rounding of that 0; kept as it was, the fits are too.
+    """
+    mid = curve * _MID_Q
+    z = np.outer(0.5 * (curve * _WIDTH_Q), k)
+    rotor = np.exp(np.outer(mid, mik))
+    sinc = np.sinc(z * (1.0 / np.pi))
+    d_sinc = rotor * ((np.cos(z) - sinc) / np.where(np.abs(z) < 1e-12, 1.0, z)) * k
+    common = rotor * sinc
+    parts = np.empty((4, k.size), complex)
+    parts[0] = common.mean(axis=0)
+    parts[1] = parts[0] * mik
+    parts[2] = (common * (_MID_L[:, None] * mik)
+                + d_sinc * (0.5 * _WIDTH_L)[:, None]).mean(axis=0)
+    parts[3] = (common * (_MID_Q[:, None] * mik)
+                + d_sinc * (0.5 * _WIDTH_Q)[:, None]).mean(axis=0)
+    return parts
+
+
 def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
     """Return the motion kernel's spectrum (as template.kernel_spectrum) and d/dblur, d/dcurve.
 
     The kernel is the distribution of ``blur u + curve (u^2 - 1/12)``, ``u`` uniform in
     [-1/2, 1/2], as ``SEGMENTS`` straight segments of equal duration.
     """
-    mid = blur * _MID_L + curve * _MID_Q
-    z = np.outer(0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q), k)
-    rotor = np.exp(np.outer(mid, -1j * k))
-    sinc = np.sinc(z * (1.0 / np.pi))
-    d_sinc = rotor * ((np.cos(z) - sinc) / np.where(np.abs(z) < 1e-12, 1.0, z)) * k
-    common = rotor * sinc
-    spectrum = common.mean(axis=0)
-    ik = -1j * k
-    d_blur = (common * (_MID_L[:, None] * ik)
-              + d_sinc * (0.5 * _WIDTH_L)[:, None]).mean(axis=0)
-    d_curve = (common * (_MID_Q[:, None] * ik)
-               + d_sinc * (0.5 * _WIDTH_Q)[:, None]).mean(axis=0)
+    spectrum, _, d_blur, d_curve = _kernel_parts(k, *_frequencies(k), blur, curve)
     return spectrum, d_blur, d_curve
 
 
@@ -149,44 +201,48 @@ class PlateModel:
         derivatives of the kernel's spectrum).
         """
         span = reach + 0.5 * abs(blur) + 0.25 * abs(curve)
-        used = valid & (np.abs(self.grid - delta) <= span)
-        count = int(np.count_nonzero(used))
+        used = np.flatnonzero(valid & (np.abs(self.grid - delta) <= span))
+        count = used.size
         if count < 12:
             return None
+        if used[-1] - used[0] + 1 == count:  # one run of columns (always, from grid_window)
+            used = slice(int(used[0]), int(used[-1]) + 1)
         y = window[used]
-        state = np.array([delta, abs(blur), curve], dtype=float)
+        y_mean = float(y.mean())
+        y_centred = y - y_mean
+        mik, k_safe = self._frequencies()
+        delta, blur, curve = float(delta), abs(float(blur)), float(curve)
         result = None
-        ik = -1j * self.k
+        jacobian = np.empty((5, count))
+        jacobian[0] = 1.0
         for _ in range(iterations):
-            spectrum, d_blur, d_curve = kernel_derivatives(self.k, state[1], state[2])
-            shifted = self.spectrum * np.exp(ik * state[0])
-            stack = np.fft.irfft(np.stack([shifted * spectrum, ik * shifted * spectrum,
-                                           shifted * d_blur, shifted * d_curve]), self.size,
-                                 axis=1)[:, used]
-            m = stack[0]
-            m_mean, y_mean = float(m.mean()), float(y.mean())
+            kernel = _kernel_parts(self.k, mik, k_safe, blur, curve)
+            kernel *= self.spectrum * np.exp(mik * delta)
+            model = np.fft.irfft(kernel, self.size, axis=1)[:, used]
+            m = model[0]
+            m_mean = float(m.mean())
             mc = m - m_mean
             norm = float(mc @ mc)
             if not norm > 0:
                 return None
-            gain = float(mc @ (y - y_mean)) / norm
+            gain = float(mc @ y_centred) / norm
             offset = y_mean - gain * m_mean
             residual = y - offset - gain * m
-            jacobian = np.column_stack([np.ones(count), m, gain * stack[1], gain * stack[2],
-                                        gain * stack[3]])
-            normal = jacobian.T @ jacobian
-            result = (state.copy(), gain, offset, float(residual @ residual), normal)
+            jacobian[1] = m
+            np.multiply(model[1:], gain, out=jacobian[2:])
+            normal = jacobian @ jacobian.T
+            result = ((delta, blur, curve), gain, offset, float(residual @ residual), normal)
+            damped = normal + 1e-9 * np.diag(np.diag(normal) + 1e-12)
             try:
-                step = np.linalg.solve(normal + 1e-9 * np.diag(np.diag(normal) + 1e-12),
-                                       jacobian.T @ residual)
+                step = np.linalg.solve(damped, jacobian @ residual)
             except np.linalg.LinAlgError:
                 return None
-            step = np.clip(step[2:], -4.0, 4.0)
-            state = state + step
-            state[1] = abs(state[1])
-            if abs(step[0]) < 2e-3 and abs(step[1]) < 0.05 and abs(step[2]) < 0.1:
+            step_delta, step_blur, step_curve = np.clip(step[2:], -4.0, 4.0).tolist()
+            delta, blur, curve = delta + step_delta, abs(blur + step_blur), curve + step_curve
+            if abs(step_delta) < 2e-3 and abs(step_blur) < 0.05 and abs(step_curve) < 0.1:
                 break
-        if result is None or not np.all(np.isfinite(state)):
+        if result is None or not (math.isfinite(delta) and math.isfinite(blur)
+                                  and math.isfinite(curve)):
             return None
         _, gain, offset, cost, normal = result
         variance = cost / max(count - 5, 1)
@@ -195,8 +251,13 @@ class PlateModel:
         except np.linalg.LinAlgError:
             return None
         sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
-        return (float(state[0]), float(state[1]), float(state[2]), gain, offset,
-                math.sqrt(variance), sigma)
+        return (delta, blur, curve, gain, offset, math.sqrt(variance), sigma)
+
+    def _frequencies(self):
+        """Return -ik and k with no zero, for ``_kernel_parts`` (kept: ``k`` never changes)."""
+        if getattr(self, '_kept_frequencies', None) is None:
+            self._kept_frequencies = _frequencies(self.k)
+        return self._kept_frequencies
 
     def local(self, shift: float, support: float) -> 'PlateModel':
         """Return the part within ``support`` of ``origin + shift`` as a small model there."""
