@@ -65,6 +65,33 @@ def _kernel_parts(k, mik, k_safe, blur, curve):
     return parts
 
 
+def _kernels_parts(k, mik, k_safe, blurs, curves):
+    """Return ``_kernel_parts`` of several kernels (frames x 4 x k), none with blur 0."""
+    mid = np.outer(blurs, _MID_L)
+    mid += np.outer(curves, _MID_Q)
+    half = np.outer(blurs, 0.5 * _WIDTH_L)
+    half += np.outer(curves, 0.5 * _WIDTH_Q)
+    half[np.abs(half) < _TINY] = _TINY
+    z = half[:, :, None] * k_safe
+    rotor = np.exp(mid[:, :, None] * mik)
+    sinc = np.sin(z)
+    sinc /= z
+    slope = np.cos(z)
+    slope -= sinc
+    slope /= z
+    common = rotor * sinc
+    slope = rotor * slope
+    parts = np.empty((len(mid), 4, k.size), complex)
+    np.matmul(_PHASE_WEIGHTS, common, out=parts[:, 1:])
+    width = _SINC_WEIGHTS @ slope
+    width *= k
+    parts[:, 2:] *= mik
+    parts[:, 2:] += width
+    parts[:, 0] = parts[:, 1]
+    parts[:, 1] *= mik
+    return parts
+
+
 def _kernel_parts_at_rest(k, mik, curve):
     """Return ``_kernel_parts`` for blur 0, rounded exactly as the fits have always had it.
 
@@ -97,14 +124,26 @@ def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
     return spectrum, d_blur, d_curve
 
 
+def _smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
+    """Return the spectra of kernels (rows, as ``kernel_spectra``); ``_frequencies(k)``."""
+    mid = np.outer(blurs, _MID_L)
+    mid += np.outer(curves, _MID_Q)
+    mid += np.asarray(shifts, dtype=float)[:, None]
+    half = np.outer(blurs, 0.5 * _WIDTH_L)
+    half += np.outer(curves, 0.5 * _WIDTH_Q)
+    half[np.abs(half) < _TINY] = _TINY
+    z = half[:, :, None] * k_safe
+    sinc = np.sin(z)
+    sinc /= z
+    rotor = np.exp(mid[:, :, None] * mik)
+    rotor *= sinc
+    return rotor.sum(axis=1) / SEGMENTS
+
+
 def kernel_spectra(k: np.ndarray, blurs: np.ndarray, curves: np.ndarray,
                    shifts: np.ndarray) -> np.ndarray:
     """Return the spectra of several kernels (rows), each shifted by ``shifts`` (px)."""
-    mid = (np.outer(blurs, _MID_L) + np.outer(curves, _MID_Q)
-           + np.asarray(shifts, dtype=float)[:, None])
-    half = 0.5 * (np.outer(blurs, _WIDTH_L) + np.outer(curves, _WIDTH_Q))
-    sinc = np.sinc(half[:, :, None] * (k / np.pi))
-    return (np.exp(mid[:, :, None] * (-1j * k)) * sinc).mean(axis=1)
+    return _smears(k, *_frequencies(k), blurs, curves, shifts)
 
 
 class PlateModel:
@@ -146,8 +185,8 @@ class PlateModel:
 
     def model(self, delta, blur, curve, slope=False):
         """Return D smeared by (blur, curve) with its origin at ``center + delta`` (grid)."""
-        spectrum = self.spectrum * kernel_spectrum(self.k, blur, curve) * np.exp(
-            -1j * self.k * delta)
+        spectrum = self.spectrum * _smears(self.k, *self._frequencies(), (blur,), (curve,),
+                                           (delta,))[0]
         if not slope:
             return np.fft.irfft(spectrum, self.size)
         return (np.fft.irfft(spectrum, self.size),
@@ -252,6 +291,102 @@ class PlateModel:
             return None
         sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
         return (delta, blur, curve, gain, offset, math.sqrt(variance), sigma)
+
+    def fit_many(self, windows, valids, deltas, blurs, curves, reach, iterations=8):
+        """Return ``fit`` of several frames (rows of ``windows``, ``valids``), batched.
+
+        The same Gauss-Newton steps as ``fit``, frame by frame, vectorised over the frames;
+        a frame whose columns are not one run or whose blur is 0 is fitted by ``fit``.
+        """
+        count = len(windows)
+        results: list = [None] * count
+        deltas = np.array(deltas, dtype=float)
+        blurs = np.abs(np.array(blurs, dtype=float))
+        curves = np.array(curves, dtype=float)
+        spans = reach + 0.5 * blurs + 0.25 * np.abs(curves)
+        used = valids & (np.abs(self.grid[None, :] - deltas[:, None]) <= spans[:, None])
+        counts = np.count_nonzero(used, axis=1)
+        first = np.argmax(used, axis=1)
+        last = used.shape[1] - 1 - np.argmax(used[:, ::-1], axis=1)
+        run = (counts >= 12) & (last - first + 1 == counts) & (blurs != 0.0)
+        for n in np.flatnonzero(~run):
+            results[n] = self.fit(windows[n], valids[n], deltas[n], blurs[n], curves[n], reach,
+                                  iterations)
+        batch = np.flatnonzero(run)
+        if batch.size == 0:
+            return results
+        lo, hi = int(first[batch].min()), int(last[batch].max()) + 1
+        mask = used[batch, lo:hi].astype(float)
+        counts = counts[batch].astype(float)
+        y = windows[batch, lo:hi] * mask
+        y_mean = y.sum(axis=1) / counts
+        y_centred = (y - y_mean[:, None]) * mask
+        mik, k_safe = self._frequencies()
+        state = np.array([deltas[batch], blurs[batch], curves[batch]])
+        kept = [None] * batch.size  # per frame: state, gain, offset, cost, normal
+        active = np.arange(batch.size)
+        failed = np.zeros(batch.size, dtype=bool)
+        for _ in range(iterations):
+            if active.size == 0:
+                break
+            delta, blur, curve = state[:, active]
+            parts = _kernels_parts(self.k, mik, k_safe, blur, curve)
+            parts *= (self.spectrum * np.exp(mik * delta[:, None]))[:, None, :]
+            model = np.fft.irfft(parts, self.size, axis=2)[:, :, lo:hi]
+            w = mask[active]
+            m = model[:, 0]
+            m_mean = (m * w).sum(axis=1) / counts[active]
+            mc = (m - m_mean[:, None]) * w
+            norm = np.einsum('ij,ij->i', mc, mc)
+            bad = ~(norm > 0)
+            norm[bad] = 1.0
+            gain = np.einsum('ij,ij->i', mc, y_centred[active]) / norm
+            offset = y_mean[active] - gain * m_mean
+            residual = (y[active] - offset[:, None] - gain[:, None] * m) * w
+            jacobian = np.empty((active.size, 5, hi - lo))
+            jacobian[:, 0] = w
+            jacobian[:, 1] = m * w
+            jacobian[:, 2:] = model[:, 1:]
+            jacobian[:, 2:] *= (gain[:, None] * w)[:, None, :]
+            normal = jacobian @ jacobian.transpose(0, 2, 1)
+            cost = np.einsum('ij,ij->i', residual, residual)
+            diagonal = np.einsum('nii->ni', normal)
+            damped = normal.copy()
+            np.einsum('nii->ni', damped)[...] += 1e-9 * (diagonal + 1e-12)
+            right = np.einsum('nij,nj->ni', jacobian, residual)
+            try:
+                step = np.linalg.solve(damped, right[:, :, None])[:, 2:, 0]
+            except np.linalg.LinAlgError:
+                step = None
+            for i, n in enumerate(active):
+                if not bad[i]:
+                    kept[n] = (gain[i], offset[i], cost[i], normal[i])
+            if step is None:  # a singular frame among them: each alone, as ``fit`` does
+                for n in batch[active]:
+                    results[n] = self.fit(windows[n], valids[n], deltas[n], blurs[n], curves[n],
+                                          reach, iterations)
+                failed[active] = True
+                break
+            failed[active[bad]] = True
+            step = np.clip(step, -4.0, 4.0)
+            state[:, active] += step.T
+            state[1, active] = np.abs(state[1, active])
+            moving = ~((np.abs(step[:, 0]) < 2e-3) & (np.abs(step[:, 1]) < 0.05)
+                       & (np.abs(step[:, 2]) < 0.1))
+            active = active[moving & ~bad]
+        for i, n in enumerate(batch):
+            if failed[i] or kept[i] is None or not np.all(np.isfinite(state[:, i])):
+                continue
+            gain, offset, cost, normal = kept[i]
+            variance = cost / max(counts[i] - 5, 1)
+            try:
+                covariance = np.linalg.inv(normal)
+            except np.linalg.LinAlgError:
+                continue
+            sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
+            results[n] = (float(state[0, i]), float(state[1, i]), float(state[2, i]),
+                          float(gain), float(offset), math.sqrt(variance), sigma)
+        return results
 
     def _frequencies(self):
         """Return -ik and k with no zero, for ``_kernel_parts`` (kept: ``k`` never changes)."""
@@ -371,11 +506,15 @@ class PlateSolver:
             rms = []
             longest = float(np.max(np.abs(kernels[use, 0])) + np.max(np.abs(kernels[use, 1])))
             local = plate.local(0.0, reach + 2.0 * longest + 16.0)
-            for n in use:
-                d = self.sign * (1.0 - self.profiles[n] / (self.light[n] * self.static))
-                window, valid, start = grid_window(d, positions[n], local.size, local.center)
-                fit = local.fit(window, valid, positions[n] - start - local.center,
-                                kernels[n, 0], kernels[n, 1], reach, iterations=2)
+            d = self.sign * (1.0 - self.profiles[use] / (self.light[use] * self.static))
+            grids = [grid_window(d[i], positions[n], local.size, local.center)
+                     for i, n in enumerate(use)]
+            starts = np.array([start for _, _, start in grids])
+            fits = local.fit_many(np.array([window for window, _, _ in grids]),
+                                  np.array([valid for _, valid, _ in grids]),
+                                  positions[use] - starts - local.center, kernels[use, 0],
+                                  kernels[use, 1], reach, iterations=2)
+            for n, start, fit in zip(use, starts, fits, strict=True):
                 moved = (math.nan if fit is None
                          else fit[0] + start + local.center - positions[n])
                 if not abs(moved) <= 8.0:
