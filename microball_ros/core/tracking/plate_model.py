@@ -24,35 +24,126 @@ _WIDTH_L = np.diff(_U)
 _WIDTH_Q = np.diff(_U2)
 
 
+_PHASE_WEIGHTS = np.array([np.full(SEGMENTS, 1.0), _MID_L, _MID_Q]) / SEGMENTS
+_SINC_WEIGHTS = np.array([0.5 * _WIDTH_L, 0.5 * _WIDTH_Q]) / SEGMENTS
+_TINY = 1e-100  # stands for 0 in a segment's half-width or at k = 0: sin(z) / z is then 1
+
+
+def _frequencies(k: np.ndarray):
+    """Return what the kernel's derivatives need of ``k``: -ik, and k with no zero."""
+    return -1j * k, np.where(k == 0.0, _TINY, k)
+
+
+def _kernel_parts(k, mik, k_safe, blur, curve):
+    """Return rows: the kernel's spectrum, its d/dx, d/dblur, d/dcurve (``kernel_derivatives``).
+
+    ``mik``, ``k_safe``: from ``_frequencies(k)``.
+    """
+    if blur == 0.0:
+        return _kernel_parts_at_rest(k, mik, curve)
+    mid = blur * _MID_L + curve * _MID_Q
+    half = 0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q)
+    half[np.abs(half) < _TINY] = _TINY
+    z = half[:, None] * k_safe
+    rotor = np.exp(mid[:, None] * mik)
+    sinc = np.sin(z)
+    sinc /= z
+    slope = np.cos(z)
+    slope -= sinc
+    slope /= z  # d sinc / dz
+    common = rotor * sinc
+    slope = rotor * slope
+    parts = np.empty((4, k.size), complex)
+    # The spectrum, and its parts moved by the segments' mids and changed by their widths.
+    np.matmul(_PHASE_WEIGHTS, common, out=parts[1:])
+    width = _SINC_WEIGHTS @ slope
+    width *= k
+    parts[2:] *= mik
+    parts[2:] += width
+    parts[0] = parts[1]
+    parts[1] *= mik
+    return parts
+
+
+def _kernels_parts(k, mik, k_safe, blurs, curves):
+    """Return ``_kernel_parts`` of several kernels (frames x 4 x k), none with blur 0."""
+    mid = np.outer(blurs, _MID_L)
+    mid += np.outer(curves, _MID_Q)
+    half = np.outer(blurs, 0.5 * _WIDTH_L)
+    half += np.outer(curves, 0.5 * _WIDTH_Q)
+    half[np.abs(half) < _TINY] = _TINY
+    z = half[:, :, None] * k_safe
+    rotor = np.exp(mid[:, :, None] * mik)
+    sinc = np.sin(z)
+    sinc /= z
+    slope = np.cos(z)
+    slope -= sinc
+    slope /= z
+    common = rotor * sinc
+    slope = rotor * slope
+    parts = np.empty((len(mid), 4, k.size), complex)
+    np.matmul(_PHASE_WEIGHTS, common, out=parts[:, 1:])
+    width = _SINC_WEIGHTS @ slope
+    width *= k
+    parts[:, 2:] *= mik
+    parts[:, 2:] += width
+    parts[:, 0] = parts[:, 1]
+    parts[:, 1] *= mik
+    return parts
+
+
+def _kernel_parts_at_rest(k, mik, curve):
+    """Return ``_kernel_parts`` for blur 0, rounded exactly as the fits have always had it.
+
+    d/dblur is 0 there (the kernel is even in the blur), so what a Gauss-Newton step from
+    blur 0 does is decided by the rounding of that 0; kept as it was, the fits are too.
+    """
+    mid = curve * _MID_Q
+    z = np.outer(0.5 * (curve * _WIDTH_Q), k)
+    rotor = np.exp(np.outer(mid, mik))
+    sinc = np.sinc(z * (1.0 / np.pi))
+    d_sinc = rotor * ((np.cos(z) - sinc) / np.where(np.abs(z) < 1e-12, 1.0, z)) * k
+    common = rotor * sinc
+    parts = np.empty((4, k.size), complex)
+    parts[0] = common.mean(axis=0)
+    parts[1] = parts[0] * mik
+    parts[2] = (common * (_MID_L[:, None] * mik)
+                + d_sinc * (0.5 * _WIDTH_L)[:, None]).mean(axis=0)
+    parts[3] = (common * (_MID_Q[:, None] * mik)
+                + d_sinc * (0.5 * _WIDTH_Q)[:, None]).mean(axis=0)
+    return parts
+
+
 def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
     """Return the motion kernel's spectrum (as template.kernel_spectrum) and d/dblur, d/dcurve.
 
     The kernel is the distribution of ``blur u + curve (u^2 - 1/12)``, ``u`` uniform in
     [-1/2, 1/2], as ``SEGMENTS`` straight segments of equal duration.
     """
-    mid = blur * _MID_L + curve * _MID_Q
-    z = np.outer(0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q), k)
-    rotor = np.exp(np.outer(mid, -1j * k))
-    sinc = np.sinc(z * (1.0 / np.pi))
-    d_sinc = rotor * ((np.cos(z) - sinc) / np.where(np.abs(z) < 1e-12, 1.0, z)) * k
-    common = rotor * sinc
-    spectrum = common.mean(axis=0)
-    ik = -1j * k
-    d_blur = (common * (_MID_L[:, None] * ik)
-              + d_sinc * (0.5 * _WIDTH_L)[:, None]).mean(axis=0)
-    d_curve = (common * (_MID_Q[:, None] * ik)
-               + d_sinc * (0.5 * _WIDTH_Q)[:, None]).mean(axis=0)
+    spectrum, _, d_blur, d_curve = _kernel_parts(k, *_frequencies(k), blur, curve)
     return spectrum, d_blur, d_curve
+
+
+def _smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
+    """Return the spectra of kernels (rows, as ``kernel_spectra``); ``_frequencies(k)``."""
+    mid = np.outer(blurs, _MID_L)
+    mid += np.outer(curves, _MID_Q)
+    mid += np.asarray(shifts, dtype=float)[:, None]
+    half = np.outer(blurs, 0.5 * _WIDTH_L)
+    half += np.outer(curves, 0.5 * _WIDTH_Q)
+    half[np.abs(half) < _TINY] = _TINY
+    z = half[:, :, None] * k_safe
+    sinc = np.sin(z)
+    sinc /= z
+    rotor = np.exp(mid[:, :, None] * mik)
+    rotor *= sinc
+    return rotor.sum(axis=1) / SEGMENTS
 
 
 def kernel_spectra(k: np.ndarray, blurs: np.ndarray, curves: np.ndarray,
                    shifts: np.ndarray) -> np.ndarray:
     """Return the spectra of several kernels (rows), each shifted by ``shifts`` (px)."""
-    mid = (np.outer(blurs, _MID_L) + np.outer(curves, _MID_Q)
-           + np.asarray(shifts, dtype=float)[:, None])
-    half = 0.5 * (np.outer(blurs, _WIDTH_L) + np.outer(curves, _WIDTH_Q))
-    sinc = np.sinc(half[:, :, None] * (k / np.pi))
-    return (np.exp(mid[:, :, None] * (-1j * k)) * sinc).mean(axis=1)
+    return _smears(k, *_frequencies(k), blurs, curves, shifts)
 
 
 class PlateModel:
@@ -94,8 +185,8 @@ class PlateModel:
 
     def model(self, delta, blur, curve, slope=False):
         """Return D smeared by (blur, curve) with its origin at ``center + delta`` (grid)."""
-        spectrum = self.spectrum * kernel_spectrum(self.k, blur, curve) * np.exp(
-            -1j * self.k * delta)
+        spectrum = self.spectrum * _smears(self.k, *self._frequencies(), (blur,), (curve,),
+                                           (delta,))[0]
         if not slope:
             return np.fft.irfft(spectrum, self.size)
         return (np.fft.irfft(spectrum, self.size),
@@ -149,44 +240,48 @@ class PlateModel:
         derivatives of the kernel's spectrum).
         """
         span = reach + 0.5 * abs(blur) + 0.25 * abs(curve)
-        used = valid & (np.abs(self.grid - delta) <= span)
-        count = int(np.count_nonzero(used))
+        used = np.flatnonzero(valid & (np.abs(self.grid - delta) <= span))
+        count = used.size
         if count < 12:
             return None
+        if used[-1] - used[0] + 1 == count:  # one run of columns (always, from grid_window)
+            used = slice(int(used[0]), int(used[-1]) + 1)
         y = window[used]
-        state = np.array([delta, abs(blur), curve], dtype=float)
+        y_mean = float(y.mean())
+        y_centred = y - y_mean
+        mik, k_safe = self._frequencies()
+        delta, blur, curve = float(delta), abs(float(blur)), float(curve)
         result = None
-        ik = -1j * self.k
+        jacobian = np.empty((5, count))
+        jacobian[0] = 1.0
         for _ in range(iterations):
-            spectrum, d_blur, d_curve = kernel_derivatives(self.k, state[1], state[2])
-            shifted = self.spectrum * np.exp(ik * state[0])
-            stack = np.fft.irfft(np.stack([shifted * spectrum, ik * shifted * spectrum,
-                                           shifted * d_blur, shifted * d_curve]), self.size,
-                                 axis=1)[:, used]
-            m = stack[0]
-            m_mean, y_mean = float(m.mean()), float(y.mean())
+            kernel = _kernel_parts(self.k, mik, k_safe, blur, curve)
+            kernel *= self.spectrum * np.exp(mik * delta)
+            model = np.fft.irfft(kernel, self.size, axis=1)[:, used]
+            m = model[0]
+            m_mean = float(m.mean())
             mc = m - m_mean
             norm = float(mc @ mc)
             if not norm > 0:
                 return None
-            gain = float(mc @ (y - y_mean)) / norm
+            gain = float(mc @ y_centred) / norm
             offset = y_mean - gain * m_mean
             residual = y - offset - gain * m
-            jacobian = np.column_stack([np.ones(count), m, gain * stack[1], gain * stack[2],
-                                        gain * stack[3]])
-            normal = jacobian.T @ jacobian
-            result = (state.copy(), gain, offset, float(residual @ residual), normal)
+            jacobian[1] = m
+            np.multiply(model[1:], gain, out=jacobian[2:])
+            normal = jacobian @ jacobian.T
+            result = ((delta, blur, curve), gain, offset, float(residual @ residual), normal)
+            damped = normal + 1e-9 * np.diag(np.diag(normal) + 1e-12)
             try:
-                step = np.linalg.solve(normal + 1e-9 * np.diag(np.diag(normal) + 1e-12),
-                                       jacobian.T @ residual)
+                step = np.linalg.solve(damped, jacobian @ residual)
             except np.linalg.LinAlgError:
                 return None
-            step = np.clip(step[2:], -4.0, 4.0)
-            state = state + step
-            state[1] = abs(state[1])
-            if abs(step[0]) < 2e-3 and abs(step[1]) < 0.05 and abs(step[2]) < 0.1:
+            step_delta, step_blur, step_curve = np.clip(step[2:], -4.0, 4.0).tolist()
+            delta, blur, curve = delta + step_delta, abs(blur + step_blur), curve + step_curve
+            if abs(step_delta) < 2e-3 and abs(step_blur) < 0.05 and abs(step_curve) < 0.1:
                 break
-        if result is None or not np.all(np.isfinite(state)):
+        if result is None or not (math.isfinite(delta) and math.isfinite(blur)
+                                  and math.isfinite(curve)):
             return None
         _, gain, offset, cost, normal = result
         variance = cost / max(count - 5, 1)
@@ -195,8 +290,109 @@ class PlateModel:
         except np.linalg.LinAlgError:
             return None
         sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
-        return (float(state[0]), float(state[1]), float(state[2]), gain, offset,
-                math.sqrt(variance), sigma)
+        return (delta, blur, curve, gain, offset, math.sqrt(variance), sigma)
+
+    def fit_many(self, windows, valids, deltas, blurs, curves, reach, iterations=8):
+        """Return ``fit`` of several frames (rows of ``windows``, ``valids``), batched.
+
+        The same Gauss-Newton steps as ``fit``, frame by frame, vectorised over the frames;
+        a frame whose columns are not one run or whose blur is 0 is fitted by ``fit``.
+        """
+        count = len(windows)
+        results: list = [None] * count
+        deltas = np.array(deltas, dtype=float)
+        blurs = np.abs(np.array(blurs, dtype=float))
+        curves = np.array(curves, dtype=float)
+        spans = reach + 0.5 * blurs + 0.25 * np.abs(curves)
+        used = valids & (np.abs(self.grid[None, :] - deltas[:, None]) <= spans[:, None])
+        counts = np.count_nonzero(used, axis=1)
+        first = np.argmax(used, axis=1)
+        last = used.shape[1] - 1 - np.argmax(used[:, ::-1], axis=1)
+        run = (counts >= 12) & (last - first + 1 == counts) & (blurs != 0.0)
+        for n in np.flatnonzero(~run):
+            results[n] = self.fit(windows[n], valids[n], deltas[n], blurs[n], curves[n], reach,
+                                  iterations)
+        batch = np.flatnonzero(run)
+        if batch.size == 0:
+            return results
+        lo, hi = int(first[batch].min()), int(last[batch].max()) + 1
+        mask = used[batch, lo:hi].astype(float)
+        counts = counts[batch].astype(float)
+        y = windows[batch, lo:hi] * mask
+        y_mean = y.sum(axis=1) / counts
+        y_centred = (y - y_mean[:, None]) * mask
+        mik, k_safe = self._frequencies()
+        state = np.array([deltas[batch], blurs[batch], curves[batch]])
+        kept = [None] * batch.size  # per frame: state, gain, offset, cost, normal
+        active = np.arange(batch.size)
+        failed = np.zeros(batch.size, dtype=bool)
+        for _ in range(iterations):
+            if active.size == 0:
+                break
+            delta, blur, curve = state[:, active]
+            parts = _kernels_parts(self.k, mik, k_safe, blur, curve)
+            parts *= (self.spectrum * np.exp(mik * delta[:, None]))[:, None, :]
+            model = np.fft.irfft(parts, self.size, axis=2)[:, :, lo:hi]
+            w = mask[active]
+            m = model[:, 0]
+            m_mean = (m * w).sum(axis=1) / counts[active]
+            mc = (m - m_mean[:, None]) * w
+            norm = np.einsum('ij,ij->i', mc, mc)
+            bad = ~(norm > 0)
+            norm[bad] = 1.0
+            gain = np.einsum('ij,ij->i', mc, y_centred[active]) / norm
+            offset = y_mean[active] - gain * m_mean
+            residual = (y[active] - offset[:, None] - gain[:, None] * m) * w
+            jacobian = np.empty((active.size, 5, hi - lo))
+            jacobian[:, 0] = w
+            jacobian[:, 1] = m * w
+            jacobian[:, 2:] = model[:, 1:]
+            jacobian[:, 2:] *= (gain[:, None] * w)[:, None, :]
+            normal = jacobian @ jacobian.transpose(0, 2, 1)
+            cost = np.einsum('ij,ij->i', residual, residual)
+            diagonal = np.einsum('nii->ni', normal)
+            damped = normal.copy()
+            np.einsum('nii->ni', damped)[...] += 1e-9 * (diagonal + 1e-12)
+            right = np.einsum('nij,nj->ni', jacobian, residual)
+            try:
+                step = np.linalg.solve(damped, right[:, :, None])[:, 2:, 0]
+            except np.linalg.LinAlgError:
+                step = None
+            for i, n in enumerate(active):
+                if not bad[i]:
+                    kept[n] = (gain[i], offset[i], cost[i], normal[i])
+            if step is None:  # a singular frame among them: each alone, as ``fit`` does
+                for n in batch[active]:
+                    results[n] = self.fit(windows[n], valids[n], deltas[n], blurs[n], curves[n],
+                                          reach, iterations)
+                failed[active] = True
+                break
+            failed[active[bad]] = True
+            step = np.clip(step, -4.0, 4.0)
+            state[:, active] += step.T
+            state[1, active] = np.abs(state[1, active])
+            moving = ~((np.abs(step[:, 0]) < 2e-3) & (np.abs(step[:, 1]) < 0.05)
+                       & (np.abs(step[:, 2]) < 0.1))
+            active = active[moving & ~bad]
+        for i, n in enumerate(batch):
+            if failed[i] or kept[i] is None or not np.all(np.isfinite(state[:, i])):
+                continue
+            gain, offset, cost, normal = kept[i]
+            variance = cost / max(counts[i] - 5, 1)
+            try:
+                covariance = np.linalg.inv(normal)
+            except np.linalg.LinAlgError:
+                continue
+            sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
+            results[n] = (float(state[0, i]), float(state[1, i]), float(state[2, i]),
+                          float(gain), float(offset), math.sqrt(variance), sigma)
+        return results
+
+    def _frequencies(self):
+        """Return -ik and k with no zero, for ``_kernel_parts`` (kept: ``k`` never changes)."""
+        if getattr(self, '_kept_frequencies', None) is None:
+            self._kept_frequencies = _frequencies(self.k)
+        return self._kept_frequencies
 
     def local(self, shift: float, support: float) -> 'PlateModel':
         """Return the part within ``support`` of ``origin + shift`` as a small model there."""
@@ -310,11 +506,15 @@ class PlateSolver:
             rms = []
             longest = float(np.max(np.abs(kernels[use, 0])) + np.max(np.abs(kernels[use, 1])))
             local = plate.local(0.0, reach + 2.0 * longest + 16.0)
-            for n in use:
-                d = self.sign * (1.0 - self.profiles[n] / (self.light[n] * self.static))
-                window, valid, start = grid_window(d, positions[n], local.size, local.center)
-                fit = local.fit(window, valid, positions[n] - start - local.center,
-                                kernels[n, 0], kernels[n, 1], reach, iterations=2)
+            d = self.sign * (1.0 - self.profiles[use] / (self.light[use] * self.static))
+            grids = [grid_window(d[i], positions[n], local.size, local.center)
+                     for i, n in enumerate(use)]
+            starts = np.array([start for _, _, start in grids])
+            fits = local.fit_many(np.array([window for window, _, _ in grids]),
+                                  np.array([valid for _, valid, _ in grids]),
+                                  positions[use] - starts - local.center, kernels[use, 0],
+                                  kernels[use, 1], reach, iterations=2)
+            for n, start, fit in zip(use, starts, fits, strict=True):
                 moved = (math.nan if fit is None
                          else fit[0] + start + local.center - positions[n])
                 if not abs(moved) <= 8.0:

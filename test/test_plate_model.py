@@ -1,0 +1,95 @@
+"""plate_model: the fast kernel spectra and the batched fits against their definitions.
+
+The kernel's spectrum is defined by template.kernel_spectrum (a quadratic path as straight
+segments); ``kernel_spectra`` and ``PlateModel.model`` must equal it shifted, and
+``PlateModel.fit_many`` must return what ``PlateModel.fit`` returns frame by frame, and the
+truth on frames made from the model itself.
+"""
+
+import numpy as np
+import pytest
+
+from microball_ros.core.tracking.plate_model import PlateModel, kernel_spectra
+from microball_ros.core.tracking.template import kernel_spectrum
+
+# (blur, curve): at rest, a plain blur, a turnaround inside the exposure (a segment of width
+# 0), and curvature alone.
+KERNELS = [(0.0, 0.0), (12.0, 3.0), (3.0, 18.0), (0.0, 6.0), (55.0, -8.0)]
+
+
+def plate(size=256, seed=5):
+    """Return a PlateModel holding a textured dip (deficit) near its origin."""
+    rng = np.random.default_rng(seed)
+    model = PlateModel(size, 60.0)
+    u = np.arange(size) - model.center
+    texture = np.convolve(rng.standard_normal(size), np.ones(5) / 5, mode='same')
+    values = 0.5 * np.exp(-0.5 * (u / 6.0) ** 2) + 0.03 * texture
+    model.values = values * (np.abs(u) < 90)
+    model.spectrum = np.fft.rfft(model.values)
+    return model
+
+
+def test_kernel_spectra_are_the_template_kernels_shifted():
+    k = 2 * np.pi * np.fft.rfftfreq(300)
+    blurs, curves = np.array(KERNELS).T
+    shifts = np.linspace(-0.5, 0.5, len(KERNELS))
+    expected = np.array([kernel_spectrum(k, b, c) * np.exp(-1j * k * s)
+                         for b, c, s in zip(blurs, curves, shifts, strict=True)])
+    assert np.allclose(kernel_spectra(k, blurs, curves, shifts), expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(('blur', 'curve'), KERNELS)
+def test_model_is_the_plate_smeared_and_placed(blur, curve):
+    model = plate()
+    delta = 0.37
+    spectrum = model.spectrum * kernel_spectrum(model.k, blur, curve) * np.exp(
+        -1j * model.k * delta)
+    values, slope = model.model(delta, blur, curve, slope=True)
+    assert np.allclose(values, np.fft.irfft(spectrum, model.size), rtol=0, atol=1e-12)
+    assert np.allclose(slope, np.fft.irfft(-1j * model.k * spectrum, model.size), rtol=0,
+                       atol=1e-12)
+
+
+def frames(model, truth, gain=0.8, offset=0.01, noise=0.0, seed=2):
+    """Return windows and masks of frames made from the model at ``truth`` (delta, blur, curve)."""
+    rng = np.random.default_rng(seed)
+    windows = np.array([offset + gain * model.model(d, b, c)
+                        + noise * rng.standard_normal(model.size) for d, b, c in truth])
+    valids = np.ones(windows.shape, dtype=bool)
+    valids[:, :model.center - 70] = False  # the ROI's edge: the columns hold no data
+    windows[~valids] = 0.0
+    return windows, valids
+
+
+def test_fit_many_finds_the_truth_of_noise_free_frames():
+    model = plate()
+    truth = np.array([(0.3, 10.0, 2.0), (-0.4, 25.0, -3.0), (0.1, 4.0, 12.0)])
+    windows, valids = frames(model, truth)
+    start = truth + np.array([0.4, 1.5, 0.8])
+    fits = model.fit_many(windows, valids, start[:, 0], start[:, 1], start[:, 2], 20.0)
+    for fit, (delta, blur, curve) in zip(fits, truth, strict=True):
+        assert fit is not None
+        assert abs(fit[0] - delta) < 1e-6
+        assert abs(fit[1] - blur) < 1e-4 and abs(fit[2] - curve) < 1e-4
+        # gain, offset and residual are those of the last step's start (as ``fit``'s)
+        assert abs(fit[3] - 0.8) < 1e-3 and abs(fit[4] - 0.01) < 1e-4
+        assert fit[5] < 1e-4
+
+
+@pytest.mark.parametrize('iterations', [2, 8])
+def test_fit_many_is_fit_frame_by_frame(iterations):
+    model = plate()
+    truth = np.array([(0.3, 10.0, 2.0), (-0.4, 25.0, -3.0), (0.1, 0.5, 12.0), (0.2, 6.0, 0.0),
+                      (0.0, 3.0, 1.0)])
+    windows, valids = frames(model, truth, noise=0.01)
+    start = truth + np.array([0.6, 2.0, -1.0])
+    start[3, 1] = 0.0  # a start at rest: fitted alone, as fit does
+    valids[4] = False  # no data: no fit
+    fits = model.fit_many(windows, valids, start[:, 0], start[:, 1], start[:, 2], 20.0,
+                          iterations=iterations)
+    assert fits[4] is None
+    for n, fit in enumerate(fits[:4]):
+        alone = model.fit(windows[n], valids[n], start[n, 0], start[n, 1], start[n, 2], 20.0,
+                          iterations=iterations)
+        assert fit is not None and alone is not None
+        assert np.allclose(fit, alone, rtol=1e-9, atol=1e-11)
