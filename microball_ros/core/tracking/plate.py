@@ -330,12 +330,13 @@ class PlateMarkTracker:
 
     @property
     def learned(self) -> dict:
-        """Return what was learned: polarity, and for a textured plate the plate near the mark."""
-        if self.plate is None:
-            return self._fallback.learned
-        return {'polarity': self.polarity, 'half_width': self._half,
-                'template': self.plate.values.copy(), 'center': self.plate.center,
-                'texture': self.texture, 'offset': self._offset}
+        """Return what was learned: the centroid tracker's, and the plate near the mark if any."""
+        learned = dict(self._fallback.learned)
+        if self.plate is not None:
+            learned.update({'polarity': self.polarity, 'half_width': self._half,
+                            'template': self.plate.values.copy(), 'center': self.plate.center,
+                            'texture': self.texture, 'offset': self._offset})
+        return learned
 
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
