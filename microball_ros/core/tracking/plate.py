@@ -5,7 +5,14 @@ Owns PlateMarkTracker (same interface as CentroidMarkTracker) and the texture te
 independent between the even and the odd rows while a texture on the plate is common to both,
 so the correlation of their profiles outside the mark (after a cubic detrend) is about 0 on a
 plain plate and close to 1 on a textured one (``texture_score``). On a plain plate the tracker
-*is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged.
+*is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged,
+unless the mark has narrow parts (a cross, a pair of bars: ``mark_shape`` of its least
+smeared priming frames), for which the deficit centroid is far from efficient: then the plate
+is learned as below and kept only if, over the priming frames, it reports every frame the
+centroid does and its jitter about the motion (``motion_jitter``: the residual about a smooth
+periodic fit) is below ``PLAIN_MARGIN`` times the centroid's; its positions are offset by the
+mean difference of the two tracks there (the centroid is exact on average). A box-shaped mark
+never has a plate learned.
 
 On a textured plate the texture moves with the mark, so near the mark the plate's relative
 deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
