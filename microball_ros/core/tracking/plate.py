@@ -5,7 +5,14 @@ Owns PlateMarkTracker (same interface as CentroidMarkTracker) and the texture te
 independent between the even and the odd rows while a texture on the plate is common to both,
 so the correlation of their profiles outside the mark (after a cubic detrend) is about 0 on a
 plain plate and close to 1 on a textured one (``texture_score``). On a plain plate the tracker
-*is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged.
+*is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged,
+unless the mark has narrow parts (a cross, a pair of bars: ``mark_shape`` of its least
+smeared priming frames), for which the deficit centroid is far from efficient: then the plate
+is learned as below and kept only if, over the priming frames, it reports every frame the
+centroid does and its jitter about the motion (``motion_jitter``: the residual about a smooth
+periodic fit) is below ``PLAIN_MARGIN`` times the centroid's; its positions are offset by the
+mean difference of the two tracks there (the centroid is exact on average). A box-shaped mark
+never has a plate learned.
 
 On a textured plate the texture moves with the mark, so near the mark the plate's relative
 deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
@@ -45,6 +52,7 @@ from collections import deque
 import math
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
@@ -52,7 +60,7 @@ from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver
 from microball_ros.core.tracking.predict import MotionPredictor
-from microball_ros.core.tracking.profile import default_saturation, row_weights
+from microball_ros.core.tracking.profile import default_saturation, deficit_noise, row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent, locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
@@ -64,6 +72,19 @@ RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one
 LIGHT_ORDER = 2  # the light per frame over the ROI: a polynomial of this degree
 LIGHT_FLANK = 48.0  # while tracking, from this many px on either side of the mark
 MIN_FLAT_GAIN = 0.5
+# A plain plate: the learned plate is tried only for a mark with narrow parts (a cross, bars),
+# seen in the priming frames smeared less than SHARP_BLUR px: its profile fills less than
+# NARROW_FILL of its extent (a box about 0.85, a blob 0.68, a cross 0.55-0.62, bars 0.45)
+# and the centroid's variance is over NARROW_GAIN times the efficient one's (a box 2.9, a blob
+# 1.5, a cross 3-4.5, bars 26); it is kept if its jitter about the motion over the priming
+# frames is below PLAIN_MARGIN times the centroid's and it reports every frame the centroid
+# does.
+SHARP_BLUR = 6.0
+SHAPE_FRAMES = 5
+NARROW_FILL = 0.72
+NARROW_GAIN = 2.0
+PLAIN_MARGIN = 0.95
+HARMONICS = 4
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -182,6 +203,81 @@ def row_flat_field(regions, weights, positions, spans, guard=8.0):
     return flat / (weights @ flat)
 
 
+def mark_shape(deficit: np.ndarray, pad: int, smoothing_px: int = 5,
+               gap: int = 16) -> tuple[float, float]:
+    """Return (fill, gain) of the mark in a deficit profile (a window around it, plate ~ 0).
+
+    ``fill``: the mark's integrated deficit over its peak times its extent, where the deficit
+    smoothed over ``smoothing_px`` exceeds a quarter of its peak (parts ``gap`` apart joined):
+    about 0.85 for a box, less for a mark with thin strokes on a wider part or with gaps.
+    ``gain``: the centroid's variance over the Cramer-Rao bound's for white noise,
+    ``sum (x - c)^2 * sum d'^2 / (sum d)^2`` over the extent and ``pad`` (the noise's share of
+    ``sum d'^2`` removed). (NaN, NaN) without a mark clear of the window's ends.
+    """
+    dip = locate(deficit, 0.0, 0.25, smoothing_px, gap)
+    first, last = dip.lo - pad, dip.hi + pad
+    if not dip.peak > 0 or first < 2 or last > deficit.size - 3:
+        return math.nan, math.nan
+    part = deficit[first:last + 1]
+    area = float(part.sum())
+    if not area > 0:
+        return math.nan, math.nan
+    fill = float(deficit[dip.lo:dip.hi + 1].sum()) / (dip.peak * (dip.hi - dip.lo + 1))
+    keep = np.ones(deficit.size, dtype=bool)
+    keep[max(first - 2, 0):last + 3] = False
+    noise = deficit_noise(deficit, keep)
+    columns = np.arange(part.size)
+    center = float(columns @ part) / area
+    slope = (part[2:] - part[:-2]) / 2.0
+    information = max(float(slope @ slope) - slope.size * noise * noise / 2.0, 0.0)
+    gain = float(((columns - center) ** 2).sum()) * information / (area * area)
+    return fill, gain
+
+
+def motion_jitter(tracks: list[np.ndarray], harmonics: int = HARMONICS) -> list[float]:
+    """Return each track's RMS residual (px) about a smooth periodic motion fitted to it.
+
+    ``tracks``: positions per frame (NaN: none); all are fitted on the frames where all have
+    one, with one fundamental frequency (the best for the first track: the peak of its
+    spectrum refined by least squares) and per track a constant, a drift and ``harmonics``
+    harmonics, linear least squares. The motion of a crank-slider is smooth and periodic, so
+    what is left is the tracker's noise (and any motion the fit misses, common to all).
+    NaN with too few common frames.
+    """
+    stack = np.array(tracks, dtype=float)
+    both = np.all(np.isfinite(stack), axis=0)
+    t = np.flatnonzero(both).astype(float)
+    parameters = 2 + 2 * int(harmonics)
+    if t.size < parameters + 8:
+        return [math.nan] * len(tracks)
+    u = (t - t.mean()) / max(float(np.ptp(t)), 1.0)
+    data = stack[:, both]
+
+    def design(omega):
+        columns = [np.ones_like(t), u]
+        for k in range(1, int(harmonics) + 1):
+            columns += [np.cos(k * omega * t), np.sin(k * omega * t)]
+        return np.column_stack(columns)
+
+    def residuals(omega, y):
+        basis = design(omega)
+        return y - basis @ np.linalg.lstsq(basis, y, rcond=None)[0]
+
+    def cost(omega):
+        r = residuals(omega, data[0])
+        return float(r @ r)
+
+    first = data[0] - np.polyval(np.polyfit(u, data[0], 1), u)
+    grid = np.linspace(0.02, math.pi, 512)
+    power = np.abs(np.exp(-1j * np.outer(grid, t)) @ first)
+    step = float(grid[1] - grid[0])
+    peak = float(grid[int(np.argmax(power))])
+    omega = float(minimize_scalar(cost, bounds=(max(peak - 2 * step, 1e-3), peak + 2 * step),
+                                  method='bounded', options={'xatol': 1e-8}).x)
+    dof = max(t.size - parameters - 1, 1)
+    return [math.sqrt(float(r @ r) / dof) for r in (residuals(omega, y) for y in data)]
+
+
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
                       threshold: float = TEXTURE_SCORE) -> bool:
     """Return True if the plate around the mark carries a texture (``texture_score``).
@@ -221,6 +317,9 @@ class PlateMarkTracker:
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
         self._predictor = MotionPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
+        self._offset = 0.0  # px added to the plate's positions (on a plain plate)
+        self.shape: tuple[float, float] | None = None  # plain plate: mark_shape's fill, gain
+        self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
     @property
     def polarity(self) -> str | None:
@@ -234,16 +333,17 @@ class PlateMarkTracker:
     @property
     def textured(self) -> bool:
         """Return True once priming found a textured plate and learned it."""
-        return self.plate is not None
+        return self.plate is not None and self.texture >= TEXTURE_SCORE
 
     @property
     def learned(self) -> dict:
-        """Return what was learned: polarity, and for a textured plate the plate near the mark."""
-        if self.plate is None:
-            return self._fallback.learned
-        return {'polarity': self.polarity, 'half_width': self._half,
-                'template': self.plate.values.copy(), 'center': self.plate.center,
-                'texture': self.texture}
+        """Return what was learned: the centroid tracker's, and the plate near the mark if any."""
+        learned = dict(self._fallback.learned)
+        if self.plate is not None:
+            learned.update({'polarity': self.polarity, 'half_width': self._half,
+                            'template': self.plate.values.copy(), 'center': self.plate.center,
+                            'texture': self.texture, 'offset': self._offset})
+        return learned
 
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
@@ -262,6 +362,8 @@ class PlateMarkTracker:
     def prime(self, frames) -> None:
         """Learn the polarity, whether the plate is textured, and if so the plate; restart."""
         frames = list(frames)
+        self._forget()
+        self.texture, self.shape, self.jitter = 0.0, None, None
         self._fallback.prime(frames)
         if self.polarity is None or len(frames) < 12:
             return
@@ -285,10 +387,99 @@ class PlateMarkTracker:
             return
         self.texture = texture_score(sample, marks)
         if self.texture < TEXTURE_SCORE:
+            self._prime_plain(regions, frames)
             return
         self._learn(regions)
         if self.plate is not None:
             self._relearn(regions, frames)
+        self.reset()
+
+    def _track_priming(self, frames, measure):
+        """Return the positions (ROI columns, NaN: none) and measurements of ``measure``."""
+        self.reset()
+        x = self.roi[0]
+        found = [measure(frame) for frame in frames]
+        self.reset()
+        return np.array([m.position_px - x if m.valid else math.nan for m in found]), found
+
+    def _prime_plain(self, regions, frames) -> None:
+        """On a plain plate, learn the plate for a mark with narrow parts if it is better.
+
+        The centroid tracks the priming frames; if the mark has narrow parts (``_narrow``)
+        the plate is learned and tracks them too, and it is kept only if it reports every
+        frame the centroid does and its jitter about the motion (``motion_jitter``) is below
+        ``PLAIN_MARGIN`` times the centroid's. The centroid is exact on average for any
+        mark and blur: the plate's positions are then offset by the mean difference of the
+        two tracks over these frames (its origin, the mid-point of the outer edges, is
+        hundredths of a pixel off the mark's centre on average).
+        """
+        centroid, found = self._track_priming(frames, self._fallback.measure)
+        if not self._narrow(regions, centroid, found):
+            return
+        self._learn(regions)
+        if self.plate is not None:
+            self._relearn(regions, frames)
+        if self.plate is None:
+            self._forget()
+            return
+        plate, _ = self._track_priming(frames, self.measure)
+        lost = np.isfinite(centroid) & ~np.isfinite(plate)
+        jitter = motion_jitter([centroid, plate])
+        self.jitter = (jitter[0], jitter[1])
+        if np.any(lost) or not jitter[1] < PLAIN_MARGIN * jitter[0]:
+            self._forget()
+            return
+        both = np.isfinite(centroid) & np.isfinite(plate)
+        self._offset = float(np.mean(centroid[both] - plate[both]))
+
+    def _narrow(self, regions, positions, found) -> bool:
+        """Return True if the mark has narrow parts, seen in its least smeared frames.
+
+        A frame's smear is the motion kernel's length from the neighbouring positions; up to
+        ``SHAPE_FRAMES`` frames smeared less than ``SHARP_BLUR`` px are used (False without
+        any), with their row-weighted deficit profile near the mark; True when the median
+        ``mark_shape`` fill is below ``NARROW_FILL`` and the gain above ``NARROW_GAIN``.
+        """
+        cfg = self.config
+        f = self.exposure_fraction
+        before, middle, after = positions[:-2], positions[1:-1], positions[2:]
+        smear = np.abs(after - before) / 2.0 * f + np.abs(after - 2 * middle + before) * f * f / 8
+        smear = np.concatenate([[math.nan], smear, [math.nan]])
+        order = [int(n) for n in np.argsort(smear, kind='stable')
+                 if smear[n] <= SHARP_BLUR][:SHAPE_FRAMES]
+        sign = 1.0 if self.polarity == 'dark' else -1.0
+        shapes = []
+        for n in order:
+            center, extent = positions[n], found[n].extent_px
+            if not math.isfinite(extent):
+                continue
+            weights = row_weights(regions[n], int(center - extent / 2),
+                                  int(center + extent / 2), cfg.pad_px, self.polarity)
+            if weights is None:
+                continue
+            profile = weights @ regions[n].astype(np.float64)
+            level = light_level(profile, self.polarity, center, extent + 16.0,
+                                flank=LIGHT_FLANK)
+            if level is None:
+                continue
+            lo = max(int(center - extent / 2 - LIGHT_FLANK), 0)
+            hi = int(center + extent / 2 + LIGHT_FLANK) + 1
+            shapes.append(mark_shape(sign * (1.0 - profile[lo:hi] / level[lo:hi]),
+                                     int(cfg.pad_px), int(cfg.smoothing_px),
+                                     int(cfg.merge_gap_px)))
+        shapes = [v for v in shapes if math.isfinite(v[0]) and math.isfinite(v[1])]
+        if not shapes:
+            return False
+        fill, gain = np.median(np.array(shapes), axis=0)
+        self.shape = (float(fill), float(gain))
+        return bool(fill < NARROW_FILL and gain > NARROW_GAIN)
+
+    def _forget(self) -> None:
+        """Drop a learned plate: every frame is measured by the centroid tracker again."""
+        self.plate = self._full = None
+        self.weights = self.static = self.flat = None
+        self._half = self._outer = 8.0
+        self._shift, self._rms, self._offset = 0.0, 1.0, 0.0
         self.reset()
 
     def _relearn(self, regions, frames) -> None:
@@ -550,8 +741,8 @@ class PlateMarkTracker:
             return self._invalid(reason, quality, contrast=peak)
         self._predictor.add(position)
         self._kernel = (blur, curve)
-        return MarkMeasurement(position + self.roi[0], quality, sigma_px=sigma, contrast=peak,
-                               extent_px=2.0 * extent)
+        return MarkMeasurement(position + self.roi[0] + self._offset, quality, sigma_px=sigma,
+                               contrast=peak, extent_px=2.0 * extent)
 
     def _search(self, d, prediction, kernel):
         """Return (column, blur, curve): the best match of the smeared plate, or None.
