@@ -316,3 +316,21 @@ def test_simulator_rectangle_keeps_the_centroid_and_learns_no_plate():
         assert mark.shape is not None and mark.shape[0] > NARROW_FILL, name
         x = np.array([r[name].position_px for r in rows])
         assert np.array_equal(x, centroid.position_px[name], equal_nan=True), name
+
+
+def test_a_textured_plate_with_a_short_stroke():
+    """A cross on a textured plate moving +-8 px: its columns are never free of the mark.
+
+    The plate's static field is then learned only beside the mark (interpolated under it, and
+    refined with the plate). Measured 0.026 / 0.061 px RMS, none lost; before, 0.26 / 1.08 px
+    with 14 of 70 frames lost (no plate was learned; the centroid followed the texture).
+    """
+    spec = SceneSpec(plates=plates(shape='cross', width=40.0, height=40.0, texture=10.0,
+                                   amplitude=8.0))
+    scene = render_scene(spec, 70, seed=3)
+    result = track(scene.frames, scene.rois, 1e-6, fps=30.0)
+    for name, truth in scene.truth.items():
+        error = result.position_px[name] - truth
+        assert np.all(np.isfinite(error)), name
+        assert float(np.sqrt(np.mean(error ** 2))) < 0.1, name
+        assert np.max(np.abs(error)) < 0.2, name

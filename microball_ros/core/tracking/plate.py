@@ -50,6 +50,7 @@ averaged over the exposure. The tracker
 
 from collections import deque
 import math
+import warnings
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -184,7 +185,8 @@ def row_flat_field(regions, weights, positions, spans, guard=8.0):
             ratio[n][:, np.abs(columns - p) <= 0.5 * span + guard] = np.nan
         else:
             ratio[n] = np.nan
-    with np.errstate(all='ignore'):
+    with warnings.catch_warnings(), np.errstate(all='ignore'):
+        warnings.simplefilter('ignore', RuntimeWarning)  # pixels the mark always covers
         flat = np.nanmean(ratio, axis=0)
         halves = np.nanmean(ratio[0::2], axis=0), np.nanmean(ratio[1::2], axis=0)
         count = np.count_nonzero(np.isfinite(ratio), axis=0)
@@ -454,7 +456,8 @@ class PlateMarkTracker:
             if not math.isfinite(extent):
                 continue
             weights = row_weights(regions[n], int(center - extent / 2),
-                                  int(center + extent / 2), cfg.pad_px, self.polarity)
+                                  int(center + extent / 2), cfg.pad_px,
+                                  'dark' if sign > 0 else 'bright')
             if weights is None:
                 continue
             profile = weights @ regions[n].astype(np.float64)
@@ -544,9 +547,16 @@ class PlateMarkTracker:
         outside &= np.isfinite(positions)[:, None]
         for _ in range(2):  # the static field, and each frame's light against it
             masked = np.where(outside, profiles, np.nan)
-            with np.errstate(all='ignore'):
+            with warnings.catch_warnings():  # columns the mark never left: NaN, no warning
+                warnings.simplefilter('ignore', RuntimeWarning)
                 static = np.nanmedian(masked, axis=0)
-            if not np.all(np.isfinite(static)) or static.min() < cfg.min_baseline:
+            seen = np.isfinite(static)
+            if np.count_nonzero(seen) < 0.25 * w:
+                return
+            # Columns the mark never left (a short stroke): the field there is interpolated;
+            # the solver learns it with the plate.
+            static = np.interp(columns, columns[seen], static[seen])
+            if static.min() < cfg.min_baseline:
                 return
             for n in np.flatnonzero(np.isfinite(positions)):
                 level = light_level(profiles[n] / static, polarity, positions[n],

@@ -29,7 +29,7 @@ _SINC_WEIGHTS = np.array([0.5 * _WIDTH_L, 0.5 * _WIDTH_Q]) / SEGMENTS
 _TINY = 1e-100  # stands for 0 in a segment's half-width or at k = 0: sin(z) / z is then 1
 
 
-def _frequencies(k: np.ndarray):
+def _frequencies(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return what the kernel's derivatives need of ``k``: -ik, and k with no zero."""
     return -1j * k, np.where(k == 0.0, _TINY, k)
 
@@ -240,12 +240,13 @@ class PlateModel:
         derivatives of the kernel's spectrum).
         """
         span = reach + 0.5 * abs(blur) + 0.25 * abs(curve)
-        used = np.flatnonzero(valid & (np.abs(self.grid - delta) <= span))
-        count = used.size
+        columns = np.flatnonzero(valid & (np.abs(self.grid - delta) <= span))
+        count = columns.size
         if count < 12:
             return None
-        if used[-1] - used[0] + 1 == count:  # one run of columns (always, from grid_window)
-            used = slice(int(used[0]), int(used[-1]) + 1)
+        used: slice | np.ndarray = columns
+        if columns[-1] - columns[0] + 1 == count:  # one run (always, from grid_window)
+            used = slice(int(columns[0]), int(columns[-1]) + 1)
         y = window[used]
         y_mean = float(y.mean())
         y_centred = y - y_mean
@@ -323,7 +324,7 @@ class PlateModel:
         y_centred = (y - y_mean[:, None]) * mask
         mik, k_safe = self._frequencies()
         state = np.array([deltas[batch], blurs[batch], curves[batch]])
-        kept = [None] * batch.size  # per frame: state, gain, offset, cost, normal
+        kept: list = [None] * batch.size  # per frame: state, gain, offset, cost, normal
         active = np.arange(batch.size)
         failed = np.zeros(batch.size, dtype=bool)
         for _ in range(iterations):
@@ -388,7 +389,7 @@ class PlateModel:
                           float(gain), float(offset), math.sqrt(variance), sigma)
         return results
 
-    def _frequencies(self):
+    def _frequencies(self) -> tuple[np.ndarray, np.ndarray]:
         """Return -ik and k with no zero, for ``_kernel_parts`` (kept: ``k`` never changes)."""
         if getattr(self, '_kept_frequencies', None) is None:
             self._kept_frequencies = _frequencies(self.k)
