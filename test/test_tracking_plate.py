@@ -20,17 +20,15 @@ from microball_ros.core import bench, rig
 from microball_ros.core.camera import box_profile
 from microball_ros.core.tracking import Tracker, TrackerConfig, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
-from microball_ros.core.tracking.plate import (
-    NARROW_FILL,
-    NARROW_GAIN,
-    PlateMarkTracker,
+from microball_ros.core.tracking.plate import NARROW_FILL, NARROW_GAIN, PlateMarkTracker
+from microball_ros.core.tracking.plate_model import kernel_derivatives
+from microball_ros.core.tracking.priming import (
     mark_shape,
     motion_jitter,
     plate_is_textured,
     row_flat_field,
     texture_score,
 )
-from microball_ros.core.tracking.plate_model import kernel_derivatives
 from microball_ros.core.tracking.template import kernel_spectrum
 import microball_ros.core.tracking.tracker as tracker_module
 

@@ -1,10 +1,11 @@
 """One mark on a plate whose texture moves with it: the learned plate, registered per frame.
 
-Owns PlateMarkTracker (same interface as CentroidMarkTracker) and the texture test
-``plate_is_textured``. Priming decides per ROI whether the plate is textured: pixel noise is
-independent between the even and the odd rows while a texture on the plate is common to both,
-so the correlation of their profiles outside the mark (after a cubic detrend) is about 0 on a
-plain plate and close to 1 on a textured one (``texture_score``). On a plain plate the tracker
+Owns PlateMarkTracker (same interface as CentroidMarkTracker); what priming measures to
+choose is core.tracking.priming. Priming decides per ROI whether the plate is textured: pixel
+noise is independent between the even and the odd rows while a texture on the plate is common
+to both, so the correlation of their profiles outside the mark (after a cubic detrend) is about
+0 on a plain plate and 0.5-1 on a textured one (``texture_score``; a static background the
+centroid tracker learned is divided out first). On a plain plate the tracker
 *is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged,
 unless the mark has narrow parts (a cross, a pair of bars: ``mark_shape`` of its least
 smeared priming frames), for which the deficit centroid is far from efficient: then the plate
@@ -30,7 +31,10 @@ averaged over the exposure. The tracker
    static field and lights (closed form), positions and kernels (fits).
    ``D``'s origin is then moved to the mark's centre, the mid-point of its two outer edges
    (half-depth crossings against the levels on either side of each edge), which a
-   multiplicative texture hardly moves (a centroid is pulled by it);
+   multiplicative texture hardly moves (a centroid is pulled by it). All of it is learned
+   twice: the second time from the positions and kernels the first plate measures (search and
+   full fit), on the ROI divided by a row flat field (``row_flat_field``: a pattern fixed in
+   the image that differs between rows) when there is one; kept if it fits better;
 2. per frame divides the row-weighted profile by the static field and by the frame's light:
    a straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
    profile over the whole learned plate placed at the predicted position, so the texture is
@@ -53,7 +57,6 @@ import math
 import warnings
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
@@ -61,18 +64,23 @@ from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver
 from microball_ros.core.tracking.predict import MotionPredictor
-from microball_ros.core.tracking.profile import default_saturation, deficit_noise, row_weights
+from microball_ros.core.tracking.priming import (
+    TEXTURE_SCORE,
+    mark_shape,
+    motion_jitter,
+    row_flat_field,
+    texture_score,
+)
+from microball_ros.core.tracking.profile import default_saturation, row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent, locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
 
-TEXTURE_SCORE = 0.1
 ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 LIGHT_ORDER = 2  # the light per frame over the ROI: a polynomial of this degree
 LIGHT_FLANK = 48.0  # while tracking, from this many px on either side of the mark
-MIN_FLAT_GAIN = 0.5
 # A plain plate: the learned plate is tried only for a mark with narrow parts (a cross, bars),
 # seen in the priming frames smeared less than SHARP_BLUR px: its profile fills less than
 # NARROW_FILL of its extent (a box about 0.85, a blob 0.68, a cross 0.55-0.62, bars 0.45)
@@ -85,37 +93,6 @@ SHAPE_FRAMES = 5
 NARROW_FILL = 0.72
 NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
-HARMONICS = 4
-
-
-def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
-    """Return how much of a plate's profile is texture: about 0 (plain) to 1 (all texture).
-
-    ``regions``: ROI images (rows x columns); ``marks``: per region the ROI columns (first,
-    last) of the mark, left out (NaN: none known). The correlation of the even-row and the
-    odd-row profiles after a cubic detrend, median over the regions; 0 when none has at least
-    24 plate columns and 4 rows.
-    """
-    values = []
-    for region, (first, last) in zip(regions, marks, strict=True):
-        w = region.shape[1]
-        if region.ndim != 2 or region.shape[0] < 4:
-            continue
-        keep = np.ones(w, dtype=bool)
-        if math.isfinite(first) and math.isfinite(last):
-            keep[max(int(first), 0):max(int(last) + 1, 0)] = False
-        if np.count_nonzero(keep) < 24:
-            continue
-        u = np.linspace(-1.0, 1.0, w)[keep]
-        residual = []
-        for rows in (region[0::2], region[1::2]):
-            profile = rows.mean(axis=0, dtype=np.float64)[keep]
-            residual.append(profile - np.polyval(np.polyfit(u, profile, 3), u))
-        a, b = residual
-        den = math.sqrt(float(a @ a) * float(b @ b))
-        if den > 0:
-            values.append(float(a @ b) / den)
-    return float(np.median(values)) if values else 0.0
 
 
 def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
@@ -163,131 +140,6 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
             break
         keep &= inside
     return level
-
-
-def row_flat_field(regions, weights, positions, spans, guard=8.0):
-    """Return the ROI's static pattern across its rows (h x w, row-weighted mean 1), or None.
-
-    A pattern fixed in the image that differs between rows (dust, a sensor's pixel response)
-    does not divide out of the row-weighted profile: under a mark that also differs between
-    rows (a cross) it leaves an error that follows the mark's place in the image. Per pixel,
-    the mean over the frames of the pixel over its column's profile, with the columns the
-    mark spans (plus ``guard``, at ``positions``, ROI columns) left out; the plate's own
-    texture, at another place in every frame, averages out. None when what is left is not
-    above what the texture and the noise leave in the means.
-    """
-    stack = np.array(regions, dtype=np.float64)
-    profiles = np.einsum('r,nrw->nw', weights, stack)
-    ratio = stack / profiles[:, None, :]
-    columns = np.arange(stack.shape[2])
-    for n, (p, span) in enumerate(zip(positions, spans, strict=True)):
-        if math.isfinite(p):
-            ratio[n][:, np.abs(columns - p) <= 0.5 * span + guard] = np.nan
-        else:
-            ratio[n] = np.nan
-    with warnings.catch_warnings(), np.errstate(all='ignore'):
-        warnings.simplefilter('ignore', RuntimeWarning)  # pixels the mark always covers
-        flat = np.nanmean(ratio, axis=0)
-        halves = np.nanmean(ratio[0::2], axis=0), np.nanmean(ratio[1::2], axis=0)
-        count = np.count_nonzero(np.isfinite(ratio), axis=0)
-    known = np.isfinite(flat) & np.isfinite(halves[0]) & np.isfinite(halves[1]) & (count >= 8)
-    if np.count_nonzero(known) < 0.5 * known.size:
-        return None
-    # Shrunk towards 1 by the Wiener factor: the pattern is what the means over the even and
-    # the odd frames share; the texture and the noise, at other places in each, they do not.
-    deviation = np.where(known, flat - 1.0, 0.0)
-    power = float(np.mean(deviation[known] ** 2))
-    shared = float(np.mean(((halves[0] - 1.0) * (halves[1] - 1.0))[known]))
-    gain = min(shared / power, 1.0) if power > 0 else 0.0
-    if gain < MIN_FLAT_GAIN:
-        return None
-    flat = 1.0 + gain * deviation
-    return flat / (weights @ flat)
-
-
-def mark_shape(deficit: np.ndarray, pad: int, smoothing_px: int = 5,
-               gap: int = 16) -> tuple[float, float]:
-    """Return (fill, gain) of the mark in a deficit profile (a window around it, plate ~ 0).
-
-    ``fill``: the mark's integrated deficit over its peak times its extent, where the deficit
-    smoothed over ``smoothing_px`` exceeds a quarter of its peak (parts ``gap`` apart joined):
-    about 0.85 for a box, less for a mark with thin strokes on a wider part or with gaps.
-    ``gain``: the centroid's variance over the Cramer-Rao bound's for white noise,
-    ``sum (x - c)^2 * sum d'^2 / (sum d)^2`` over the extent and ``pad`` (the noise's share of
-    ``sum d'^2`` removed). (NaN, NaN) without a mark clear of the window's ends.
-    """
-    dip = locate(deficit, 0.0, 0.25, smoothing_px, gap)
-    first, last = dip.lo - pad, dip.hi + pad
-    if not dip.peak > 0 or first < 2 or last > deficit.size - 3:
-        return math.nan, math.nan
-    part = deficit[first:last + 1]
-    area = float(part.sum())
-    if not area > 0:
-        return math.nan, math.nan
-    fill = float(deficit[dip.lo:dip.hi + 1].sum()) / (dip.peak * (dip.hi - dip.lo + 1))
-    keep = np.ones(deficit.size, dtype=bool)
-    keep[max(first - 2, 0):last + 3] = False
-    noise = deficit_noise(deficit, keep)
-    columns = np.arange(part.size)
-    center = float(columns @ part) / area
-    slope = (part[2:] - part[:-2]) / 2.0
-    information = max(float(slope @ slope) - slope.size * noise * noise / 2.0, 0.0)
-    gain = float(((columns - center) ** 2).sum()) * information / (area * area)
-    return fill, gain
-
-
-def motion_jitter(tracks: list[np.ndarray], harmonics: int = HARMONICS) -> list[float]:
-    """Return each track's RMS residual (px) about a smooth periodic motion fitted to it.
-
-    ``tracks``: positions per frame (NaN: none); all are fitted on the frames where all have
-    one, with one fundamental frequency (the best for the first track: the peak of its
-    spectrum refined by least squares) and per track a constant, a drift and ``harmonics``
-    harmonics, linear least squares. The motion of a crank-slider is smooth and periodic, so
-    what is left is the tracker's noise (and any motion the fit misses, common to all).
-    NaN with too few common frames.
-    """
-    stack = np.array(tracks, dtype=float)
-    both = np.all(np.isfinite(stack), axis=0)
-    t = np.flatnonzero(both).astype(float)
-    parameters = 2 + 2 * int(harmonics)
-    if t.size < parameters + 8:
-        return [math.nan] * len(tracks)
-    u = (t - t.mean()) / max(float(np.ptp(t)), 1.0)
-    data = stack[:, both]
-
-    def design(omega):
-        columns = [np.ones_like(t), u]
-        for k in range(1, int(harmonics) + 1):
-            columns += [np.cos(k * omega * t), np.sin(k * omega * t)]
-        return np.column_stack(columns)
-
-    def residuals(omega, y):
-        basis = design(omega)
-        return y - basis @ np.linalg.lstsq(basis, y, rcond=None)[0]
-
-    def cost(omega):
-        r = residuals(omega, data[0])
-        return float(r @ r)
-
-    first = data[0] - np.polyval(np.polyfit(u, data[0], 1), u)
-    grid = np.linspace(0.02, math.pi, 512)
-    power = np.abs(np.exp(-1j * np.outer(grid, t)) @ first)
-    step = float(grid[1] - grid[0])
-    peak = float(grid[int(np.argmax(power))])
-    omega = float(minimize_scalar(cost, bounds=(max(peak - 2 * step, 1e-3), peak + 2 * step),
-                                  method='bounded', options={'xatol': 1e-8}).x)
-    dof = max(t.size - parameters - 1, 1)
-    return [math.sqrt(float(r @ r) / dof) for r in (residuals(omega, y) for y in data)]
-
-
-def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
-                      threshold: float = TEXTURE_SCORE) -> bool:
-    """Return True if the plate around the mark carries a texture (``texture_score``).
-
-    Plain plates score within about 0.05 of 0, textured and speckled ones 0.5 (a fine grain,
-    1.5 px) to 0.97: the threshold is between, where a weak texture still beats the centroid.
-    """
-    return texture_score(regions, marks) >= threshold
 
 
 class PlateMarkTracker:
