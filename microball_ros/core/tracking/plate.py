@@ -93,6 +93,7 @@ SHAPE_FRAMES = 5
 NARROW_FILL = 0.72
 NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
+MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 
 
 def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
@@ -172,6 +173,7 @@ class PlateMarkTracker:
         self._predictor = MotionPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
         self._offset = 0.0  # px added to the plate's positions (on a plain plate)
+        self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
         self.shape: tuple[float, float] | None = None  # plain plate: mark_shape's fill, gain
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
@@ -196,7 +198,8 @@ class PlateMarkTracker:
         if self.plate is not None:
             learned.update({'polarity': self.polarity, 'half_width': self._half,
                             'template': self.plate.values.copy(), 'center': self.plate.center,
-                            'texture': self.texture, 'offset': self._offset})
+                            'texture': self.texture, 'offset': self._offset,
+                            'sigma_scale': self._sigma_scale})
         return learned
 
     def reset(self) -> None:
@@ -242,11 +245,32 @@ class PlateMarkTracker:
         self.texture = texture_score(sample, marks)
         if self.texture < TEXTURE_SCORE:
             self._prime_plain(regions, frames)
-            return
-        self._learn(regions)
+        else:
+            self._learn(regions)
+            if self.plate is not None:
+                self._relearn(regions, frames)
         if self.plate is not None:
-            self._relearn(regions, frames)
+            self._calibrate(frames)
         self.reset()
+
+    def _calibrate(self, frames) -> None:
+        """Scale the fit's standard errors to the scatter of the track over the priming frames.
+
+        A fit's standard error counts the pixel noise only; what the learned plate leaves of
+        a texture or a pattern fixed in the image scatters the positions too. The track's
+        scatter about a smooth periodic motion (``motion_jitter``) over the priming frames,
+        against the RMS of the standard errors there, scales them (between 1 and
+        ``MAX_SIGMA_SCALE``; a larger ratio is the motion fit's failure, not the tracker's).
+        """
+        self._sigma_scale = 1.0
+        positions, found = self._track_priming(frames, self.measure)
+        sigmas = np.array([m.sigma_px for m in found if m.valid])
+        jitter = motion_jitter([positions])[0]
+        if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
+            return
+        ratio = jitter / float(np.sqrt(np.mean(sigmas ** 2)))
+        if 1.0 < ratio <= MAX_SIGMA_SCALE:
+            self._sigma_scale = ratio
 
     def _track_priming(self, frames, measure):
         """Return the positions (ROI columns, NaN: none) and measurements of ``measure``."""
@@ -335,6 +359,7 @@ class PlateMarkTracker:
         self.weights = self.static = self.flat = None
         self._half = self._outer = 8.0
         self._shift, self._rms, self._offset = 0.0, 1.0, 0.0
+        self._sigma_scale = 1.0
         self.reset()
 
     def _relearn(self, regions, frames) -> None:
@@ -603,7 +628,8 @@ class PlateMarkTracker:
             return self._invalid(reason, quality, contrast=peak)
         self._predictor.add(position)
         self._kernel = (blur, curve)
-        return MarkMeasurement(position + self.roi[0] + self._offset, quality, sigma_px=sigma,
+        return MarkMeasurement(position + self.roi[0] + self._offset, quality,
+                               sigma_px=sigma * self._sigma_scale,
                                contrast=peak, extent_px=2.0 * extent)
 
     def _search(self, d, prediction, kernel):
