@@ -244,17 +244,18 @@ class PlateMarkTracker:
             return
         self.texture = texture_score(sample, marks)
         if self.texture < TEXTURE_SCORE:
-            self._prime_plain(regions, frames)
+            self._prime_plain(regions, frames)  # calibrates a plate it keeps
         else:
             self._learn(regions)
             if self.plate is not None:
                 self._relearn(regions, frames)
-        if self.plate is not None:
-            self._calibrate(frames)
+                self._calibrate(frames)
         self.reset()
 
-    def _calibrate(self, frames) -> None:
+    def _calibrate(self, frames, tracked=None) -> None:
         """Scale the fit's standard errors to the scatter of the track over the priming frames.
+
+        ``tracked``: the priming frames' (positions, measurements) with this plate, if known.
 
         A fit's standard error counts the pixel noise only; what the learned plate leaves of
         a texture or a pattern fixed in the image scatters the positions too. The track's
@@ -263,7 +264,8 @@ class PlateMarkTracker:
         ``MAX_SIGMA_SCALE``; a larger ratio is the motion fit's failure, not the tracker's).
         """
         self._sigma_scale = 1.0
-        positions, found = self._track_priming(frames, self.measure)
+        positions, found = (self._track_priming(frames, self.measure) if tracked is None
+                            else tracked)
         sigmas = np.array([m.sigma_px for m in found if m.valid])
         jitter = motion_jitter([positions])[0]
         if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
@@ -300,7 +302,8 @@ class PlateMarkTracker:
         if self.plate is None:
             self._forget()
             return
-        plate, _ = self._track_priming(frames, self.measure)
+        tracked = self._track_priming(frames, self.measure)
+        plate = tracked[0]
         lost = np.isfinite(centroid) & ~np.isfinite(plate)
         jitter = motion_jitter([centroid, plate])
         self.jitter = (jitter[0], jitter[1])
@@ -309,6 +312,7 @@ class PlateMarkTracker:
             return
         both = np.isfinite(centroid) & np.isfinite(plate)
         self._offset = float(np.mean(centroid[both] - plate[both]))
+        self._calibrate(frames, tracked)
 
     def _narrow(self, regions, positions, found) -> bool:
         """Return True if the mark has narrow parts, seen in its least smeared frames.
