@@ -10,7 +10,8 @@ template cut from a still frame does not match a smeared mark, and a symmetric m
 centre of symmetry of the smeared mark, which differs from the exposure average by up to a few
 tenths of a pixel when the speed changes during the exposure (seen with the paper's motion).
 
-Per mark and frame, one module per stage (all 1-D after one pass over the ROI):
+Per mark and frame, the centroid tracker (core.tracking.centroid) has one module per stage
+(all 1-D after one pass over the ROI):
 
 0. ``background``: a pattern fixed in the image (a window, dust, scratches), learned on the
    priming frames outside the mark's footprint, is divided out (or subtracted, if it is light
@@ -28,6 +29,14 @@ Per mark and frame, one module per stage (all 1-D after one pass over the ROI):
    has barely moved since the previous frame, the centre of mirror symmetry (Gauss-Newton on
    the antisymmetric energy, band-limited interpolation); if the two disagree by more than 3
    sigma the blur is asymmetric and the centroid is kept.
+
+The default method 'auto' (core.tracking.plate) measures every frame so, unless priming finds
+better (core.tracking.priming has what it measures): on a plate whose texture moves with the
+mark, and for a mark with narrow parts (a cross, bars) on a plain plate when its track is
+clearly steadier, it learns the plate itself (mark and texture, core.tracking.plate_model:
+jointly with the static field and each frame's light, twice) and fits each frame with the
+exposure's motion kernel, its standard errors scaled to the track's scatter over the priming
+frames.
 
 The polarity is 'auto' by default: the first frame the mark is found in fixes it (dark or
 bright, from the skewness of the profile, else whichever detection stands out more). The
