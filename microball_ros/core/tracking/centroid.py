@@ -26,6 +26,7 @@ from microball_ros.core.tracking.profile import (
     column_profile,
     default_saturation,
     deficit_noise,
+    plate_row_weights,
     polarity_of,
     relative_deficit,
     row_weights,
@@ -300,9 +301,9 @@ class CentroidMarkTracker:
             smear = self._against_plate(profile, None, polarity)
             if smear is not None and smear[3] - smear[2] + 1 > LONG_SMEAR * w:
                 # A smear too long for a baseline from the frame's own columns.
-                deficit, keep, lo, hi = smear
+                deficit, keep, lo, hi, gain = smear
                 return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation,
-                                    True)
+                                    gain)
         baseline = self._baseline.envelope(profile, polarity)
         if baseline.min() < cfg.min_baseline:
             return self._invalid('too dark')
@@ -324,7 +325,7 @@ class CentroidMarkTracker:
             _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px,
                                   cfg.merge_gap_px)
             margin = guard
-        return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation, False)
+        return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation, None)
 
     def _against_plate(self, profile, weights, polarity, keep=None):
         """Return (deficit, keep, lo, hi) against the learned plate times this frame's gain.
@@ -356,21 +357,29 @@ class CentroidMarkTracker:
                 free[max(lo - guard, 0):hi + guard + 1] = False
                 if np.count_nonzero(free) < 12:
                     return None
-        return deficit, free, lo, hi
+        return deficit, free, lo, hi, gain
 
-    def _finish(self, region, raw, deficit, keep, lo, hi, polarity, saturation, smear):
+    def _finish(self, region, raw, deficit, keep, lo, hi, polarity, saturation, gain):
         """Return the measurement from a located mark: row weights, checks, position.
 
-        ``smear``: the deficit is against the learned plate (a long smear), not a baseline
-        fitted to this frame; the window then runs to the noise and must hold the whole
-        deficit the ROI shows.
+        ``gain``: not None when the deficit is against the learned plate times this gain (a
+        long smear), not a baseline fitted to this frame; the row weights are then measured
+        against the plate, the window runs to the noise and must hold the whole deficit the
+        ROI shows.
         """
+        smear = gain is not None
         cfg = self.config
         x, _, w, _ = self.roi
         pad = int(cfg.pad_px)
         guard = pad + int(cfg.smoothing_px)
         if cfg.weight_rows and region.shape[0] > 1:
-            own = row_weights(region, lo, hi, pad, polarity)
+            if smear:
+                plate = self._plate.image
+                rows = slice(None) if self._rows is None else self._rows
+                own = None if plate is None else plate_row_weights(
+                    region, gain * plate[rows], lo, hi, pad, polarity)
+            else:
+                own = row_weights(region, lo, hi, pad, polarity)
             if self._row_weights is not None and own is not None and float(
                     np.abs(own - self._row_weights).sum()) > self._row_tolerance:
                 # Rows darker or lighter than the mark's own: partly hidden, or something
