@@ -46,6 +46,7 @@ ROW_SPREADS = 5.0
 # and a deficit outside it over CUT_FRACTION of the area inside rejects the frame.
 LONG_SMEAR = 0.25
 SMEAR_THRESHOLD = 0.01
+SHORT_FIRST = 0.6
 CUT_FRACTION = 0.05
 
 
@@ -102,6 +103,8 @@ class CentroidMarkTracker:
         self._previous: float | None = None
         self._background = StaticBackground()
         self._plate = StaticPlate()
+        self._plate_rows: slice | None = None
+        self._plate_mean: np.ndarray | None = None
         self._rows: slice | None = None
         self._row_weights: np.ndarray | None = None
         self._row_tolerance = math.inf
@@ -131,6 +134,7 @@ class CentroidMarkTracker:
         frames = list(frames)
         self._background.clear()
         self._plate.clear()
+        self._plate_rows = self._plate_mean = None
         regions = None
         if self.config.static_background:
             regions = np.stack([roi_region(frame, self.roi, self.name) for frame in frames]
@@ -298,7 +302,7 @@ class CentroidMarkTracker:
         pad = int(cfg.pad_px)
         guard = pad + int(cfg.smoothing_px)
         if self._plate.image is not None:
-            smear = self._against_plate(profile, None, polarity)
+            smear = self._against_plate(profile, None, polarity, shortest=LONG_SMEAR * w)
             if smear is not None and smear[3] - smear[2] + 1 > LONG_SMEAR * w:
                 # A smear too long for a baseline from the frame's own columns.
                 deficit, keep, lo, hi, gain = smear
@@ -327,16 +331,24 @@ class CentroidMarkTracker:
             margin = guard
         return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation, None)
 
-    def _against_plate(self, profile, weights, polarity, keep=None):
-        """Return (deficit, keep, lo, hi) against the learned plate times this frame's gain.
+    def _against_plate(self, profile, weights, polarity, keep=None, shortest=0.0):
+        """Return (deficit, keep, lo, hi, gain) against the learned plate times a gain.
 
         The gain is fitted on ``keep`` (the columns away from the mark), or found with them:
         from all columns, then (twice) from those outside the located smear and a guard. The
         smear's extent is where the smoothed deficit exceeds three times its noise (the
-        plate is the frame's own, less the noise: nothing else is left). None if too dark.
+        plate is the frame's own, less the noise: nothing else is left). None if too dark,
+        or if the first extent is shorter than ``SHORT_FIRST`` times ``shortest`` columns (a
+        mark for the frame's own baseline: no time spent here).
         """
         cfg = self.config
-        plate = self._plate.profile(weights, slice(None) if self._rows is None else self._rows)
+        rows = slice(None) if self._rows is None else self._rows
+        if weights is None:
+            if self._plate_rows != rows:
+                self._plate_rows, self._plate_mean = rows, self._plate.profile(None, rows)
+            plate = self._plate_mean
+        else:
+            plate = self._plate.profile(weights, rows)
         if plate is None:
             return None
         ratio = profile / plate
@@ -352,6 +364,9 @@ class CentroidMarkTracker:
             noise = deficit_noise(deficit, free)
             _, _, lo, hi = locate(deficit, noise, SMEAR_THRESHOLD, cfg.smoothing_px,
                                   cfg.merge_gap_px)
+            if not fixed and hi - lo + 1 <= SHORT_FIRST * shortest:
+                return None
+            shortest = 0.0
             if not fixed:
                 free = np.ones(profile.size, dtype=bool)
                 free[max(lo - guard, 0):hi + guard + 1] = False
