@@ -48,6 +48,7 @@ CLIP_SIGMA = 4.0
 PLATE_ROUNDS = 3
 PLATE_GUARD = 8
 PLATE_SNR = 8.0
+PLATE_SEEN = 0.9
 
 
 def _smooth_known(image: np.ndarray, known: np.ndarray,
@@ -278,16 +279,27 @@ class StaticPlate:
     could not be learned. Learned in ``PLATE_ROUNDS`` rounds: the smear located in every frame
     against the plate so far (first the temporal median of the gain-normalised profiles),
     then the per-pixel mean over the frames whose smear (plus ``PLATE_GUARD`` px) leaves the
-    pixel's column, each frame divided by its gain measured on those columns.
+    pixel's column, each frame divided by its gain measured on those columns. ``known``: the
+    columns seen in at least ``MIN_SAMPLES`` frames (others are interpolated, and a smear
+    over them is not measured against the plate: ``seen``).
     """
 
     def __init__(self) -> None:
         """Start with no plate."""
         self.image: np.ndarray | None = None
+        self.known: np.ndarray | None = None
 
     def clear(self) -> None:
         """Forget the plate."""
         self.image = None
+        self.known = None
+
+    def seen(self, lo: int, hi: int) -> bool:
+        """Return True if the plate was seen (not interpolated) over columns lo..hi."""
+        if self.known is None:
+            return False
+        part = self.known[max(lo, 0):hi + 1]
+        return part.size > 0 and float(part.mean()) >= PLATE_SEEN
 
     def profile(self, weights: np.ndarray | None, rows: slice) -> np.ndarray | None:
         """Return the plate's profile over ``rows``: row-weighted, or the rows' mean."""
@@ -350,3 +362,4 @@ class StaticPlate:
             if not np.all(plate > 0):
                 return
         self.image = image
+        self.known = known

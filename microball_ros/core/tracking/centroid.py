@@ -303,7 +303,8 @@ class CentroidMarkTracker:
         guard = pad + int(cfg.smoothing_px)
         if self._plate.image is not None:
             smear = self._against_plate(profile, None, polarity, shortest=LONG_SMEAR * w)
-            if smear is not None and smear[3] - smear[2] + 1 > LONG_SMEAR * w:
+            if (smear is not None and smear[3] - smear[2] + 1 > LONG_SMEAR * w
+                    and self._plate.seen(smear[2], smear[3])):
                 # A smear too long for a baseline from the frame's own columns.
                 deficit, keep, lo, hi, gain = smear
                 return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation,
