@@ -30,6 +30,7 @@ from microball_ros.core.tracking.profile import (
     polarity_of,
     relative_deficit,
     row_weights,
+    smooth,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import locate
@@ -79,6 +80,19 @@ def mark_rows(weights: list[np.ndarray],
                                             1e-12)
     spread = float(np.median(np.abs(own - band).sum(axis=1)))
     return slice(first, last), band, ROW_TOLERANCE + ROW_SPREADS * spread
+
+
+def cut_smear(deficit: np.ndarray, lo: int, hi: int, pad: int, noise: float) -> bool:
+    """Return True if a deficit against the plate lies outside columns lo - pad..hi + pad.
+
+    Against the plate the deficit is the mark's alone (and noise): outside the window it
+    sums to more than ``CUT_FRACTION`` of the area inside plus three times its noise only
+    when the window cuts the smear (or something else dark is in the ROI).
+    """
+    inside = float(deficit[max(lo - pad, 0):hi + pad + 1].sum())
+    outside = float(deficit.sum()) - inside
+    return abs(outside) > CUT_FRACTION * max(inside, 0.0) + 3.0 * noise * math.sqrt(
+        deficit.size)
 
 
 class CentroidMarkTracker:
@@ -303,10 +317,11 @@ class CentroidMarkTracker:
         guard = pad + int(cfg.smoothing_px)
         if self._plate.image is not None:
             smear = self._against_plate(profile, None, polarity, shortest=LONG_SMEAR * w)
-            if (smear is not None and smear[3] - smear[2] + 1 > LONG_SMEAR * w
+            if (smear is not None and (smear[3] - smear[2] + 1 > LONG_SMEAR * w or smear[5])
                     and self._plate.seen(smear[2], smear[3])):
-                # A smear too long for a baseline from the frame's own columns.
-                deficit, keep, lo, hi, gain = smear
+                # A smear too long for a baseline from the frame's own columns, or one the
+                # located dip holds only part of (the rest hidden, or something else dark).
+                deficit, keep, lo, hi, gain, _ = smear
                 return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation,
                                     gain)
         baseline = self._baseline.envelope(profile, polarity)
@@ -356,6 +371,7 @@ class CentroidMarkTracker:
         sign = 1.0 if polarity == 'dark' else -1.0
         guard = int(cfg.pad_px) + int(cfg.smoothing_px)
         fixed = keep is not None
+        cut = False
         free = keep if fixed else np.ones(profile.size, dtype=bool)
         for _ in range(1 if fixed else 3):
             gain = float(np.mean(ratio[free])) if fixed else float(np.median(ratio[free]))
@@ -363,17 +379,25 @@ class CentroidMarkTracker:
                 return None
             deficit = sign * (1.0 - ratio / gain)
             noise = deficit_noise(deficit, free)
-            _, _, lo, hi = locate(deficit, noise, SMEAR_THRESHOLD, cfg.smoothing_px,
-                                  cfg.merge_gap_px)
+            _, peak, lo, hi = locate(deficit, noise, SMEAR_THRESHOLD, cfg.smoothing_px,
+                                     cfg.merge_gap_px)
             if not fixed and hi - lo + 1 <= SHORT_FIRST * shortest:
-                return None
+                if not cut_smear(deficit, lo, hi, int(cfg.pad_px), noise):
+                    return None
+                cut = True
             shortest = 0.0
             if not fixed:
-                free = np.ones(profile.size, dtype=bool)
+                # The gain from the plate outside every dip that stands out (a part of the
+                # smear beyond a gap, too), and a guard.
+                level = max(SMEAR_THRESHOLD * peak, 3.0 * noise / math.sqrt(cfg.smoothing_px))
+                above = (smooth(deficit, int(cfg.smoothing_px)) > level).astype(float)
+                free = np.convolve(above, np.ones(2 * guard + 1), mode='same') == 0
                 free[max(lo - guard, 0):hi + guard + 1] = False
                 if np.count_nonzero(free) < 12:
                     return None
-        return deficit, free, lo, hi, gain
+        if not fixed and not cut and shortest == 0.0:
+            cut = cut_smear(deficit, lo, hi, int(cfg.pad_px), noise)
+        return deficit, free, lo, hi, gain, cut
 
     def _finish(self, region, raw, deficit, keep, lo, hi, polarity, saturation, gain):
         """Return the measurement from a located mark: row weights, checks, position.
@@ -431,12 +455,10 @@ class CentroidMarkTracker:
         centroid, sigma_centroid, area = deficit_centroid(deficit, first, last, noise)
         if area <= 0:
             return self._invalid('low contrast', contrast=peak)
-        if smear:
+        if smear and cut_smear(deficit, lo, hi, pad, noise):
             # Against the plate the deficit is the mark's alone: a window that cuts the smear
             # leaves part of it outside (or something else dark is in the ROI).
-            outside = float(deficit.sum()) - area
-            if abs(outside) > CUT_FRACTION * area + 3.0 * noise * math.sqrt(w):
-                return self._invalid('smear cut by the window', contrast=peak)
+            return self._invalid('smear cut by the window', contrast=peak)
         # The integrated deficit does not change with blur: a jump means a partly hidden mark.
         # Rejected frames enter the history too, so a lasting change is accepted after a while.
         ratio = area / float(np.median(self._areas)) if len(self._areas) >= 3 else 1.0
