@@ -33,6 +33,9 @@ import math
 import cv2
 import numpy as np
 
+from microball_ros.core.tracking.profile import deficit_noise
+from microball_ros.core.tracking.search import locate
+
 MAD_TO_SIGMA = 1.4826
 SMOOTH_PX = 6.0
 MIN_SAMPLES = 8
@@ -42,6 +45,10 @@ MIN_STRUCTURE = 0.25
 MAX_CORRELATION = 0.5
 PROVISIONAL_FRAMES = 15
 CLIP_SIGMA = 4.0
+PLATE_ROUNDS = 3
+PLATE_GUARD = 8
+PLATE_SNR = 8.0
+PLATE_SEEN = 0.9
 
 
 def _smooth_known(image: np.ndarray, known: np.ndarray,
@@ -260,3 +267,99 @@ def _masked_moments(regions: np.ndarray,
     mean = total / np.maximum(count, 1)
     variance = np.maximum(squares - count * mean ** 2, 0.0) / np.maximum(count - 1, 1)
     return mean, variance, count
+
+
+class StaticPlate:
+    """The plain plate of one ROI as the camera sees it, learned while priming, or none.
+
+    For smears too long for a baseline fitted on the frame's own columns (the mark covers most
+    of them): the plate (its illumination, vignetting and all) is fixed in the image, so each
+    pixel's value when the mark's smear is elsewhere, divided by the frame's gain (flicker), is
+    the same in every frame. ``image`` (h x w, float64) is that per-pixel mean, None when it
+    could not be learned. Learned in ``PLATE_ROUNDS`` rounds: the smear located in every frame
+    against the plate so far (first the temporal median of the gain-normalised profiles),
+    then the per-pixel mean over the frames whose smear (plus ``PLATE_GUARD`` px) leaves the
+    pixel's column, each frame divided by its gain measured on those columns. ``known``: the
+    columns seen in at least ``MIN_SAMPLES`` frames (others are interpolated, and a smear
+    over them is not measured against the plate: ``seen``).
+    """
+
+    def __init__(self) -> None:
+        """Start with no plate."""
+        self.image: np.ndarray | None = None
+        self.known: np.ndarray | None = None
+
+    def clear(self) -> None:
+        """Forget the plate."""
+        self.image = None
+        self.known = None
+
+    def seen(self, lo: int, hi: int) -> bool:
+        """Return True if the plate was seen (not interpolated) over columns lo..hi."""
+        if self.known is None:
+            return False
+        part = self.known[max(lo, 0):hi + 1]
+        return part.size > 0 and float(part.mean()) >= PLATE_SEEN
+
+    def profile(self, weights: np.ndarray | None, rows: slice) -> np.ndarray | None:
+        """Return the plate's profile over ``rows``: row-weighted, or the rows' mean."""
+        if self.image is None:
+            return None
+        image = self.image[rows]
+        if weights is None or weights.size != image.shape[0]:
+            return image.mean(axis=0)
+        return weights @ image
+
+    def learn(self, regions: np.ndarray, polarity: str, smoothing: int, gap: int) -> None:
+        """Learn the plate from the priming ROIs ``regions`` (n x h x w) of a ``polarity`` mark.
+
+        ``smoothing`` and ``gap`` (px) are the tracker's: the smear is located where the
+        smoothed deficit exceeds three times its noise, parts ``gap`` apart joined.
+        """
+        self.clear()
+        n, _, w = regions.shape
+        if n < MIN_FRAMES or w < 4 * PLATE_GUARD:
+            return
+        sign = 1.0 if polarity == 'dark' else -1.0
+        regions = regions.astype(np.float64)
+        profiles = regions.mean(axis=1)
+        if not np.all(profiles > 0):
+            return
+        gains = np.median(profiles, axis=1)
+        plate = np.median(profiles / gains[:, None], axis=0)
+        everywhere = np.ones(w, dtype=bool)
+        covered = np.ones((n, w), dtype=bool)
+        for _ in range(PLATE_ROUNDS):
+            before, covered = covered, np.ones((n, w), dtype=bool)
+            for i in range(n):
+                ratio = profiles[i] / plate
+                free = ~before[i] if not before[i].all() else everywhere
+                gain = float(np.median(ratio[free]))
+                deficit = sign * (1.0 - ratio / gain)
+                noise = deficit_noise(deficit, everywhere)
+                dip = locate(deficit, noise, 0.0, smoothing, gap)
+                if dip.peak * math.sqrt(smoothing) < PLATE_SNR * noise:
+                    continue  # no mark seen: the frame is left out
+                covered[i] = False
+                covered[i, max(dip.lo - PLATE_GUARD, 0):dip.hi + PLATE_GUARD + 1] = True
+            free = ~covered
+            if np.count_nonzero(free.sum(axis=0) >= MIN_SAMPLES) < 0.5 * w:
+                return
+            gains = np.array([float(np.median(profiles[i, free[i]] / plate[free[i]]))
+                              if free[i].any() else math.nan for i in range(n)])
+            use = free & np.isfinite(gains)[:, None]
+            count = use.sum(axis=0)
+            known = count >= MIN_SAMPLES
+            if np.count_nonzero(known) < 0.5 * w:
+                return
+            scaled = regions / np.where(np.isfinite(gains), gains, 1.0)[:, None, None]
+            image = np.einsum('ijk,ik->jk', scaled, use.astype(np.float64)) / np.maximum(
+                count, 1)
+            columns = np.arange(w)
+            for row in image:
+                row[:] = np.interp(columns, columns[known], row[known])
+            plate = image.mean(axis=0)
+            if not np.all(plate > 0):
+                return
+        self.image = image
+        self.known = known

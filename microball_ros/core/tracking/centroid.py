@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from microball_ros.core.tracking.background import StaticBackground
+from microball_ros.core.tracking.background import StaticBackground, StaticPlate
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.profile import (
@@ -26,9 +26,11 @@ from microball_ros.core.tracking.profile import (
     column_profile,
     default_saturation,
     deficit_noise,
+    plate_row_weights,
     polarity_of,
     relative_deficit,
     row_weights,
+    smooth,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import locate
@@ -40,6 +42,13 @@ ROW_FRACTION = 0.03
 ROW_MARGIN = 3
 ROW_TOLERANCE = 0.06
 ROW_SPREADS = 5.0
+# A smear whose extent (against the learned plate) exceeds LONG_SMEAR of the ROI's width is
+# measured against the plate; its window runs to SMEAR_THRESHOLD of the peak (or the noise),
+# and a deficit outside it over CUT_FRACTION of the area inside rejects the frame.
+LONG_SMEAR = 0.25
+SMEAR_THRESHOLD = 0.01
+SHORT_FIRST = 0.6
+CUT_FRACTION = 0.05
 
 
 def mark_rows(weights: list[np.ndarray],
@@ -73,6 +82,19 @@ def mark_rows(weights: list[np.ndarray],
     return slice(first, last), band, ROW_TOLERANCE + ROW_SPREADS * spread
 
 
+def cut_smear(deficit: np.ndarray, lo: int, hi: int, pad: int, noise: float) -> bool:
+    """Return True if a deficit against the plate lies outside columns lo - pad..hi + pad.
+
+    Against the plate the deficit is the mark's alone (and noise): outside the window it
+    sums to more than ``CUT_FRACTION`` of the area inside plus three times its noise only
+    when the window cuts the smear (or something else dark is in the ROI).
+    """
+    inside = float(deficit[max(lo - pad, 0):hi + pad + 1].sum())
+    outside = float(deficit.sum()) - inside
+    return abs(outside) > CUT_FRACTION * max(inside, 0.0) + 3.0 * noise * math.sqrt(
+        deficit.size)
+
+
 class CentroidMarkTracker:
     """Track one mark inside one ROI, frame by frame.
 
@@ -94,6 +116,9 @@ class CentroidMarkTracker:
         self._areas: deque[float] = deque(maxlen=int(self.config.area_history))
         self._previous: float | None = None
         self._background = StaticBackground()
+        self._plate = StaticPlate()
+        self._plate_rows: slice | None = None
+        self._plate_mean: np.ndarray | None = None
         self._rows: slice | None = None
         self._row_weights: np.ndarray | None = None
         self._row_tolerance = math.inf
@@ -122,6 +147,8 @@ class CentroidMarkTracker:
         """
         frames = list(frames)
         self._background.clear()
+        self._plate.clear()
+        self._plate_rows = self._plate_mean = None
         regions = None
         if self.config.static_background:
             regions = np.stack([roi_region(frame, self.roi, self.name) for frame in frames]
@@ -156,6 +183,10 @@ class CentroidMarkTracker:
                 polarity = self.polarity
                 self.reset()
                 self.polarity = polarity
+        if self.polarity is not None and len(frames) > 0:
+            self._plate.learn(np.stack([self._background.apply(roi_region(
+                frame, self.roi, self.name)) for frame in frames]), self.polarity,
+                int(self.config.smoothing_px), int(self.config.merge_gap_px))
 
     def _contrast(self, frames) -> float:
         """Return the mark's median contrast over ``frames`` (0 where not found); reset."""
@@ -284,6 +315,15 @@ class CentroidMarkTracker:
             profile = column_profile(region)
         pad = int(cfg.pad_px)
         guard = pad + int(cfg.smoothing_px)
+        if self._plate.image is not None:
+            smear = self._against_plate(profile, None, polarity, shortest=LONG_SMEAR * w)
+            if (smear is not None and (smear[3] - smear[2] + 1 > LONG_SMEAR * w or smear[5])
+                    and self._plate.seen(smear[2], smear[3])):
+                # A smear too long for a baseline from the frame's own columns, or one the
+                # located dip holds only part of (the rest hidden, or something else dark).
+                deficit, keep, lo, hi, gain, _ = smear
+                return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation,
+                                    gain)
         baseline = self._baseline.envelope(profile, polarity)
         if baseline.min() < cfg.min_baseline:
             return self._invalid('too dark')
@@ -305,8 +345,81 @@ class CentroidMarkTracker:
             _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px,
                                   cfg.merge_gap_px)
             margin = guard
+        return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation, None)
+
+    def _against_plate(self, profile, weights, polarity, keep=None, shortest=0.0):
+        """Return (deficit, keep, lo, hi, gain) against the learned plate times a gain.
+
+        The gain is fitted on ``keep`` (the columns away from the mark), or found with them:
+        from all columns, then (twice) from those outside the located smear and a guard. The
+        smear's extent is where the smoothed deficit exceeds three times its noise (the
+        plate is the frame's own, less the noise: nothing else is left). None if too dark,
+        or if the first extent is shorter than ``SHORT_FIRST`` times ``shortest`` columns (a
+        mark for the frame's own baseline: no time spent here).
+        """
+        cfg = self.config
+        rows = slice(None) if self._rows is None else self._rows
+        if weights is None:
+            if self._plate_rows != rows:
+                self._plate_rows, self._plate_mean = rows, self._plate.profile(None, rows)
+            plate = self._plate_mean
+        else:
+            plate = self._plate.profile(weights, rows)
+        if plate is None:
+            return None
+        ratio = profile / plate
+        sign = 1.0 if polarity == 'dark' else -1.0
+        guard = int(cfg.pad_px) + int(cfg.smoothing_px)
+        fixed = keep is not None
+        cut = False
+        free = keep if fixed else np.ones(profile.size, dtype=bool)
+        for _ in range(1 if fixed else 3):
+            gain = float(np.mean(ratio[free])) if fixed else float(np.median(ratio[free]))
+            if not gain * float(plate.min()) >= cfg.min_baseline:
+                return None
+            deficit = sign * (1.0 - ratio / gain)
+            noise = deficit_noise(deficit, free)
+            _, peak, lo, hi = locate(deficit, noise, SMEAR_THRESHOLD, cfg.smoothing_px,
+                                     cfg.merge_gap_px)
+            if not fixed and hi - lo + 1 <= SHORT_FIRST * shortest:
+                if not cut_smear(deficit, lo, hi, int(cfg.pad_px), noise):
+                    return None
+                cut = True
+            shortest = 0.0
+            if not fixed:
+                # The gain from the plate outside every dip that stands out (a part of the
+                # smear beyond a gap, too), and a guard.
+                level = max(SMEAR_THRESHOLD * peak, 3.0 * noise / math.sqrt(cfg.smoothing_px))
+                above = (smooth(deficit, int(cfg.smoothing_px)) > level).astype(float)
+                free = np.convolve(above, np.ones(2 * guard + 1), mode='same') == 0
+                free[max(lo - guard, 0):hi + guard + 1] = False
+                if np.count_nonzero(free) < 12:
+                    return None
+        if not fixed and not cut and shortest == 0.0:
+            cut = cut_smear(deficit, lo, hi, int(cfg.pad_px), noise)
+        return deficit, free, lo, hi, gain, cut
+
+    def _finish(self, region, raw, deficit, keep, lo, hi, polarity, saturation, gain):
+        """Return the measurement from a located mark: row weights, checks, position.
+
+        ``gain``: not None when the deficit is against the learned plate times this gain (a
+        long smear), not a baseline fitted to this frame; the row weights are then measured
+        against the plate, the window runs to the noise and must hold the whole deficit the
+        ROI shows.
+        """
+        smear = gain is not None
+        cfg = self.config
+        x, _, w, _ = self.roi
+        pad = int(cfg.pad_px)
+        guard = pad + int(cfg.smoothing_px)
         if cfg.weight_rows and region.shape[0] > 1:
-            own = row_weights(region, lo, hi, pad, polarity)
+            if smear:
+                plate = self._plate.image
+                rows = slice(None) if self._rows is None else self._rows
+                own = None if plate is None else plate_row_weights(
+                    region, gain * plate[rows], lo, hi, pad, polarity)
+            else:
+                own = row_weights(region, lo, hi, pad, polarity)
             if self._row_weights is not None and own is not None and float(
                     np.abs(own - self._row_weights).sum()) > self._row_tolerance:
                 # Rows darker or lighter than the mark's own: partly hidden, or something
@@ -319,12 +432,16 @@ class CentroidMarkTracker:
             else:
                 self._weights = None
             if weighted is not None:
-                deficit = self._deficit(weighted, keep, polarity)
+                if smear:
+                    found = self._against_plate(weighted, weights, polarity, keep)
+                    deficit = None if found is None else found[0]
+                else:
+                    deficit = self._deficit(weighted, keep, polarity)
                 if deficit is None:
                     return self._invalid('too dark')
         noise = deficit_noise(deficit, keep)
-        _, peak, lo, hi = locate(deficit, noise, cfg.threshold, cfg.smoothing_px,
-                                 cfg.merge_gap_px)
+        _, peak, lo, hi = locate(deficit, noise, SMEAR_THRESHOLD if smear else cfg.threshold,
+                                 cfg.smoothing_px, cfg.merge_gap_px)
         snr = peak * math.sqrt(cfg.smoothing_px) / noise
         if snr < cfg.min_snr or peak < cfg.min_depth:
             return self._invalid('low contrast', contrast=peak)
@@ -338,6 +455,10 @@ class CentroidMarkTracker:
         centroid, sigma_centroid, area = deficit_centroid(deficit, first, last, noise)
         if area <= 0:
             return self._invalid('low contrast', contrast=peak)
+        if smear and cut_smear(deficit, lo, hi, pad, noise):
+            # Against the plate the deficit is the mark's alone: a window that cuts the smear
+            # leaves part of it outside (or something else dark is in the ROI).
+            return self._invalid('smear cut by the window', contrast=peak)
         # The integrated deficit does not change with blur: a jump means a partly hidden mark.
         # Rejected frames enter the history too, so a lasting change is accepted after a while.
         ratio = area / float(np.median(self._areas)) if len(self._areas) >= 3 else 1.0

@@ -130,6 +130,27 @@ def row_weights(region: np.ndarray, lo: int, hi: int, pad: int,
     return depth / total
 
 
+def plate_row_weights(region: np.ndarray, plate: np.ndarray, lo: int, hi: int, pad: int,
+                      polarity: str) -> np.ndarray | None:
+    """Return weights per ROI row proportional to the mark's depth in it, against a plate.
+
+    ``plate`` is the plain plate under ``region`` (same shape, this frame's light): the depth
+    of a row is the mark's mean deficit in it over columns ``lo - pad`` .. ``hi + pad``, which
+    a long smear, covering most columns, leaves no flanks for (``row_weights``). None if there
+    is no depth.
+    """
+    a, b = max(lo - pad, 0), min(hi + pad + 1, region.shape[1])
+    if b <= a:
+        return None
+    difference = plate[:, a:b] - region[:, a:b]
+    depth = difference.mean(axis=1) if polarity == 'dark' else -difference.mean(axis=1)
+    depth = np.clip(smooth(depth, 3), 0.0, None)
+    total = float(depth.sum())
+    if total <= 0:
+        return None
+    return depth / total
+
+
 def row_weighted_profile(region: np.ndarray, lo: int, hi: int, pad: int,
                          polarity: str) -> np.ndarray | None:
     """Return the ROI's rows averaged with weights proportional to the mark's depth in each.
