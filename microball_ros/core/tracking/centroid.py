@@ -11,6 +11,11 @@ moving one), the recent integrated deficits (to recognise a partly hidden mark) 
 the first ``ROW_FRAMES`` frames the mark was found in, its rows and row weights (the plates
 move along x only, so they do not change; a frame whose rows depart from them shows a mark
 partly hidden or something dark beside it).
+
+A smear longer than ``LONG_SMEAR`` of the ROI (15 fps at a whole-frame exposure) leaves too
+little plate in its own frame for a baseline: it is measured against the plain plate learned
+while priming (core.tracking.background.StaticPlate) times the frame's gain, its window runs
+to the noise, and a window that cuts the smear rejects the frame.
 """
 
 from collections import deque
@@ -348,14 +353,15 @@ class CentroidMarkTracker:
         return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation, None)
 
     def _against_plate(self, profile, weights, polarity, keep=None, shortest=0.0):
-        """Return (deficit, keep, lo, hi, gain) against the learned plate times a gain.
+        """Return (deficit, keep, lo, hi, gain, cut) against the learned plate times a gain.
 
         The gain is fitted on ``keep`` (the columns away from the mark), or found with them:
         from all columns, then (twice) from those outside the located smear and a guard. The
         smear's extent is where the smoothed deficit exceeds three times its noise (the
         plate is the frame's own, less the noise: nothing else is left). None if too dark,
         or if the first extent is shorter than ``SHORT_FIRST`` times ``shortest`` columns (a
-        mark for the frame's own baseline: no time spent here).
+        mark for the frame's own baseline: no time spent here). ``cut``: the located smear
+        does not hold all the deficit (``cut_smear``).
         """
         cfg = self.config
         rows = slice(None) if self._rows is None else self._rows
