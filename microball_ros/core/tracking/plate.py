@@ -93,6 +93,7 @@ SHAPE_FRAMES = 5
 NARROW_FILL = 0.72
 NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
+PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 
 
@@ -556,9 +557,30 @@ class PlateMarkTracker:
 
     # -- a frame ---------------------------------------------------------------------------
     def measure(self, frame: np.ndarray) -> MarkMeasurement:
-        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement."""
+        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
+
+        On a plain plate with a learned plate (a mark with narrow parts) the centroid tracker
+        measures too, and its checks guard the plate's fit, whose window reaches further
+        along the plate: a mark it finds partly hidden, or a plate position more than
+        ``PLAIN_AGREE`` standard errors (and 0.1 px) from its own, is not reported.
+        """
         if self.plate is None or self.weights is None:
             return self._fallback.measure(frame)
+        if self.texture >= TEXTURE_SCORE:
+            return self._measure_plate(frame)
+        check = self._fallback.measure(frame)
+        found = self._measure_plate(frame)
+        if not check.valid:
+            return MarkMeasurement(math.nan, min(check.quality, found.quality),
+                                   contrast=found.contrast, reason=check.reason)
+        if found.valid and abs(found.position_px - check.position_px) > PLAIN_AGREE * math.hypot(
+                found.sigma_px, check.sigma_px) + 0.1:
+            return MarkMeasurement(math.nan, 0.0, contrast=found.contrast,
+                                   reason='no match')
+        return found
+
+    def _measure_plate(self, frame: np.ndarray) -> MarkMeasurement:
+        """Measure the mark in one frame with the learned plate (see the module)."""
         cfg = self.config
         w = self.roi[2]
         region = self._region(frame)
