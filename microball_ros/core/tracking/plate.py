@@ -581,6 +581,9 @@ class PlateMarkTracker:
 
     def _measure_plate(self, frame: np.ndarray) -> MarkMeasurement:
         """Measure the mark in one frame with the learned plate (see the module)."""
+        plate = self.plate
+        if plate is None or self.weights is None:
+            return self._fallback.measure(frame)
         cfg = self.config
         w = self.roi[2]
         region = self._region(frame)
@@ -619,24 +622,24 @@ class PlateMarkTracker:
                               (blur, curve))
             if d is None:
                 return self._invalid('too dark')
-        size = self.plate.size
+        size = plate.size
         window, valid, j0 = self._window(d, start, size)
-        fit = self.plate.fit(window, valid, start - j0 - self.plate.center, blur, curve,
+        fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve,
                              reach + 8.0)
         if fit is None or fit[5] > (cfg.match_tolerance + 0.5) * self._rms:
             # A short kernel's blur and curvature are hardly separable: the fit can stop in
             # a false minimum. Restart it from a few short kernels and keep the best.
             for restart in RESTART_BLURS:
-                other = self.plate.fit(window, valid, start - j0 - self.plate.center, restart,
+                other = plate.fit(window, valid, start - j0 - plate.center, restart,
                                        0.0, reach + 8.0)
                 if other is not None and (fit is None or other[5] < fit[5]):
                     fit = other
         if fit is None:
             return self._invalid('no match')
         delta, blur, curve, gain, _, rms, sigma = fit
-        position = delta + j0 + self.plate.center
+        position = delta + j0 + plate.center
         extent = reach + 0.5 * blur + 0.25 * abs(curve)
-        peak = gain * float(self.plate.values.max())
+        peak = gain * float(plate.values.max())
         if abs(position - start) > 4.0 or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
         if position - extent < 1 or position + extent > w - 2:
