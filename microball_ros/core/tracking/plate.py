@@ -7,7 +7,7 @@ to both, so the correlation of their profiles outside the mark (after a cubic de
 0 on a plain plate and 0.5-1 on a textured one (``texture_score``; a static background the
 centroid tracker learned is divided out first). On a plain plate the tracker
 *is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged,
-unless the mark has narrow parts (a cross, a pair of bars: ``mark_shape`` of its least
+unless the mark has narrow parts (a cross, a pair of bars: ``narrow_shape`` of its least
 smeared priming frames), for which the deficit centroid is far from efficient: then the plate
 is learned as below and kept only if, over the priming frames, it reports every frame the
 centroid does and its jitter about the motion (``motion_jitter``: the residual about a smooth
@@ -62,86 +62,40 @@ from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
-from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver
+from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, grid_window
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
-    mark_shape,
+    first_positions,
     motion_jitter,
+    narrow_shape,
     row_flat_field,
     texture_score,
 )
-from microball_ros.core.tracking.profile import default_saturation, row_weights
+from microball_ros.core.tracking.profile import (
+    LIGHT_FLANK,
+    default_saturation,
+    light_level,
+    row_weights,
+)
 from microball_ros.core.tracking.results import MarkMeasurement
-from microball_ros.core.tracking.search import dip_extent, locate
-from microball_ros.core.tracking.subpixel import deficit_centroid
+from microball_ros.core.tracking.search import dip_extent
 
 ROUNDS = 4
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
-LIGHT_ORDER = 2  # the light per frame over the ROI: a polynomial of this degree
-LIGHT_FLANK = 48.0  # while tracking, from this many px on either side of the mark
 # A plain plate: the learned plate is tried only for a mark with narrow parts (a cross, bars),
-# seen in the priming frames smeared less than SHARP_BLUR px: its profile fills less than
+# seen in the priming frames smeared least (priming.narrow_shape): its profile fills less than
 # NARROW_FILL of its extent (a box about 0.85, a blob 0.68, a cross 0.55-0.62, bars 0.45)
 # and the centroid's variance is over NARROW_GAIN times the efficient one's (a box 2.9, a blob
 # 1.5, a cross 3-4.5, bars 26); it is kept if its jitter about the motion over the priming
 # frames is below PLAIN_MARGIN times the centroid's and it reports every frame the centroid
 # does.
-SHARP_BLUR = 6.0
-SHAPE_FRAMES = 5
 NARROW_FILL = 0.72
 NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
 PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
-
-
-def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
-                extent: float = 0.0, order: int | None = None,
-                flank: float | None = None) -> np.ndarray | None:
-    """Return this frame's light over a profile divided by the static field; None if dark.
-
-    The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
-    ``LIGHT_ORDER`` fitted to ``ratio`` outside ``extent`` (px, full width) around ``center``:
-    there the plate is its texture alone (or nothing, when ``ratio`` was divided by it). Refitted
-    without the columns far off the fit: without a centre, those in a dip (the mark); with
-    one, any (something passing over the plate). With ``flank`` (px), only the columns that
-    far beyond ``extent`` on either side are used, and the light is a straight line across
-    the mark (a constant when one side is missing).
-    """
-    sign = 1.0 if polarity == 'dark' else -1.0
-    order = LIGHT_ORDER if order is None else int(order)
-    w = ratio.size
-    u = np.linspace(-1.0, 1.0, w)
-    least = 4 * (order + 1) + 16
-    keep = np.ones(w, dtype=bool)
-    if math.isfinite(center):
-        offset = np.arange(w) - center
-        keep = np.abs(offset) > 0.5 * extent
-        if flank is not None:
-            keep &= np.abs(offset) <= 0.5 * extent + flank
-            sides = min(np.count_nonzero(keep & (offset < 0)),
-                        np.count_nonzero(keep & (offset > 0)))
-            order = min(order, 1) if sides >= 8 else 0
-            least = 12
-        if np.count_nonzero(keep) < least:
-            keep = np.ones(w, dtype=bool)
-    for _ in range(3):
-        level = np.polyval(np.polyfit(u[keep], ratio[keep], order), u)
-        if not level.min() > 0:
-            return None
-        # Columns far off the light (the mark, found in a dip, or something passing over
-        # the plate) are left out, and the light fitted again.
-        d = sign * (1.0 - ratio / level)
-        middle = float(np.median(d[keep]))
-        spread = 1.4826 * float(np.median(np.abs(d[keep] - middle)))
-        inside = np.abs(d - middle) <= 4.0 * spread if math.isfinite(center) else (
-            d < middle + 3.0 * spread)
-        if np.count_nonzero(keep & inside) < least or np.all(inside[keep]):
-            break
-        keep &= inside
-    return level
 
 
 class PlateMarkTracker:
@@ -286,7 +240,8 @@ class PlateMarkTracker:
     def _prime_plain(self, regions, frames) -> None:
         """On a plain plate, learn the plate for a mark with narrow parts if it is better.
 
-        The centroid tracks the priming frames; if the mark has narrow parts (``_narrow``)
+        The centroid tracks the priming frames; if the mark has narrow parts (``narrow_shape``
+        of its least smeared frames: fill below ``NARROW_FILL``, gain above ``NARROW_GAIN``)
         the plate is learned and tracks them too, and it is kept only if it reports every
         frame the centroid does and its jitter about the motion (``motion_jitter``) is below
         ``PLAIN_MARGIN`` times the centroid's. The centroid is exact on average for any
@@ -295,7 +250,13 @@ class PlateMarkTracker:
         hundredths of a pixel off the mark's centre on average).
         """
         centroid, found = self._track_priming(frames, self._fallback.measure)
-        if not self._narrow(regions, centroid, found):
+        polarity = self.polarity
+        if polarity is None:
+            return
+        self.shape = narrow_shape(regions, centroid, np.array([m.extent_px for m in found]),
+                                  polarity, self.config, self.exposure_fraction)
+        if self.shape is None or not (self.shape[0] < NARROW_FILL
+                                      and self.shape[1] > NARROW_GAIN):
             return
         self._learn(regions)
         if self.plate is not None:
@@ -314,49 +275,6 @@ class PlateMarkTracker:
         both = np.isfinite(centroid) & np.isfinite(plate)
         self._offset = float(np.mean(centroid[both] - plate[both]))
         self._calibrate(frames, tracked)
-
-    def _narrow(self, regions, positions, found) -> bool:
-        """Return True if the mark has narrow parts, seen in its least smeared frames.
-
-        A frame's smear is the motion kernel's length from the neighbouring positions; up to
-        ``SHAPE_FRAMES`` frames smeared less than ``SHARP_BLUR`` px are used (False without
-        any), with their row-weighted deficit profile near the mark; True when the median
-        ``mark_shape`` fill is below ``NARROW_FILL`` and the gain above ``NARROW_GAIN``.
-        """
-        cfg = self.config
-        f = self.exposure_fraction
-        before, middle, after = positions[:-2], positions[1:-1], positions[2:]
-        smear = np.abs(after - before) / 2.0 * f + np.abs(after - 2 * middle + before) * f * f / 8
-        smear = np.concatenate([[math.nan], smear, [math.nan]])
-        order = [int(n) for n in np.argsort(smear, kind='stable')
-                 if smear[n] <= SHARP_BLUR][:SHAPE_FRAMES]
-        sign = 1.0 if self.polarity == 'dark' else -1.0
-        shapes = []
-        for n in order:
-            center, extent = positions[n], found[n].extent_px
-            if not math.isfinite(extent):
-                continue
-            weights = row_weights(regions[n], int(center - extent / 2),
-                                  int(center + extent / 2), cfg.pad_px,
-                                  'dark' if sign > 0 else 'bright')
-            if weights is None:
-                continue
-            profile = weights @ regions[n].astype(np.float64)
-            level = light_level(profile, self.polarity, center, extent + 16.0,
-                                flank=LIGHT_FLANK)
-            if level is None:
-                continue
-            lo = max(int(center - extent / 2 - LIGHT_FLANK), 0)
-            hi = int(center + extent / 2 + LIGHT_FLANK) + 1
-            shapes.append(mark_shape(sign * (1.0 - profile[lo:hi] / level[lo:hi]),
-                                     int(cfg.pad_px), int(cfg.smoothing_px),
-                                     int(cfg.merge_gap_px)))
-        shapes = [v for v in shapes if math.isfinite(v[0]) and math.isfinite(v[1])]
-        if not shapes:
-            return False
-        fill, gain = np.median(np.array(shapes), axis=0)
-        self.shape = (float(fill), float(gain))
-        return bool(fill < NARROW_FILL and gain > NARROW_GAIN)
 
     def _forget(self) -> None:
         """Drop a learned plate: every frame is measured by the centroid tracker again."""
@@ -410,7 +328,7 @@ class PlateMarkTracker:
         if polarity is None:
             return
         self.plate = None
-        positions, extents = self._first_positions(regions)
+        positions, extents = first_positions(regions, polarity, cfg)
         if start is not None:
             positions = np.array(start[0], dtype=float)
             typical = float(np.nanmedian(extents)) if np.any(np.isfinite(extents)) else 0.0
@@ -479,37 +397,6 @@ class PlateMarkTracker:
         self.static = solver.static
         self._rms = float(np.median(rms)) if len(rms) else 1.0
 
-    def _first_positions(self, regions):
-        """Return each frame's first position and extent (ROI columns; NaN: not found).
-
-        The strongest dip of the profile against the median profile over the frames (the
-        mark is elsewhere in most of them), its extent where the smoothed deficit exceeds a
-        quarter of its peak, and the deficit centroid over that extent and a pad.
-        """
-        cfg = self.config
-        profiles = np.array([r.mean(axis=0, dtype=np.float64) for r in regions])
-        profiles /= np.median(profiles, axis=1)[:, None]  # flicker, before the median
-        static = np.median(profiles, axis=0) * float(np.median(
-            [r.mean(dtype=np.float64) for r in regions]))
-        sign = 1.0 if self.polarity == 'dark' else -1.0
-        positions = np.full(len(regions), np.nan)
-        extents = np.full(len(regions), np.nan)
-        if static.min() < cfg.min_baseline:
-            return positions, extents
-        for n, profile in enumerate(profiles):
-            level = light_level(profile / static, self.polarity, order=0)
-            if level is None:
-                continue
-            d = sign * (1.0 - profile / (static * level))
-            dip = locate(d, 0.0, 0.25, cfg.smoothing_px, cfg.merge_gap_px)
-            first, last = dip.lo - cfg.pad_px, dip.hi + cfg.pad_px
-            if first < 1 or last > d.size - 2 or not dip.peak > cfg.min_depth:
-                continue
-            centroid, _, area = deficit_centroid(d, first, last, 1.0)
-            if area > 0:
-                positions[n], extents[n] = centroid, float(dip.hi - dip.lo + 1)
-        return positions, extents
-
     def _deficit(self, profile, center=math.nan, extent=0.0, kernel=None):
         """Return the deficit against the static field and this frame's light; None if dark.
 
@@ -544,16 +431,6 @@ class PlateMarkTracker:
         """Return the width (px) the smeared mark can cover: the light is fitted outside it."""
         curve = abs(kernel[1]) if kernel is not None else 0.0
         return 2.0 * (self._outer + 0.5 * abs(blur) + 0.25 * curve) + 8.0
-
-    @staticmethod
-    def _window(d, column, size):
-        """Return the grid window of d centred near ``column``, its valid mask and start."""
-        j0 = int(round(column)) - size // 2
-        index = np.arange(j0, j0 + size)
-        valid = (index >= 0) & (index < d.size)
-        window = np.zeros(size)
-        window[valid] = d[index[valid]]
-        return window, valid, j0
 
     # -- a frame ---------------------------------------------------------------------------
     def measure(self, frame: np.ndarray) -> MarkMeasurement:
@@ -623,7 +500,7 @@ class PlateMarkTracker:
             if d is None:
                 return self._invalid('too dark')
         size = plate.size
-        window, valid, j0 = self._window(d, start, size)
+        window, valid, j0 = grid_window(d, start, size, size // 2)
         fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve,
                              reach + 8.0)
         if fit is None or fit[5] > (cfg.match_tolerance + 0.5) * self._rms:

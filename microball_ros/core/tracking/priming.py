@@ -5,7 +5,9 @@
 ``row_flat_field``: a pattern fixed in the image that differs between rows, left by the
 row-weighted profile; ``mark_shape``: whether a mark has narrow parts (a cross, bars), for which
 the deficit centroid is far from efficient; ``motion_jitter``: a track's scatter about a smooth
-periodic motion, to compare two trackers on the same frames.
+periodic motion, to compare two trackers on the same frames; ``narrow_shape``: ``mark_shape``
+of the least smeared priming frames; ``first_positions``: each priming frame's mark from its
+dip, before anything is learned.
 """
 
 import math
@@ -14,12 +16,21 @@ import warnings
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from microball_ros.core.tracking.profile import deficit_noise
+from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.profile import (
+    LIGHT_FLANK,
+    deficit_noise,
+    light_level,
+    row_weights,
+)
 from microball_ros.core.tracking.search import locate
+from microball_ros.core.tracking.subpixel import deficit_centroid
 
 TEXTURE_SCORE = 0.1
 MIN_FLAT_GAIN = 0.5
 HARMONICS = 4
+SHARP_BLUR = 6.0  # narrow_shape: frames smeared less than this (px) show the mark's shape
+SHAPE_FRAMES = 5  # narrow_shape: at most this many of them
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -175,3 +186,77 @@ def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]
     1.5 px) to 0.97: the threshold is between, where a weak texture still beats the centroid.
     """
     return texture_score(regions, marks) >= threshold
+
+
+def narrow_shape(regions: list[np.ndarray], positions: np.ndarray, extents: np.ndarray,
+                 polarity: str, config: TrackerConfig,
+                 exposure_fraction: float) -> tuple[float, float] | None:
+    """Return the median ``mark_shape`` (fill, gain) of the least smeared frames, or None.
+
+    ``positions`` and ``extents``: the mark per frame (ROI columns; NaN: not found). A frame's
+    smear is the motion kernel's length from the neighbouring positions; up to
+    ``SHAPE_FRAMES`` frames smeared less than ``SHARP_BLUR`` px are used, with their
+    row-weighted deficit against the light beside the mark (``light_level``).
+    """
+    f = exposure_fraction
+    before, middle, after = positions[:-2], positions[1:-1], positions[2:]
+    smear = np.abs(after - before) / 2.0 * f + np.abs(after - 2 * middle + before) * f * f / 8
+    smear = np.concatenate([[math.nan], smear, [math.nan]])
+    order = [int(n) for n in np.argsort(smear, kind='stable')
+             if smear[n] <= SHARP_BLUR][:SHAPE_FRAMES]
+    sign = 1.0 if polarity == 'dark' else -1.0
+    shapes = []
+    for n in order:
+        center, extent = positions[n], extents[n]
+        if not math.isfinite(extent):
+            continue
+        weights = row_weights(regions[n], int(center - extent / 2), int(center + extent / 2),
+                              config.pad_px, polarity)
+        if weights is None:
+            continue
+        profile = weights @ regions[n].astype(np.float64)
+        level = light_level(profile, polarity, center, extent + 16.0, flank=LIGHT_FLANK)
+        if level is None:
+            continue
+        lo = max(int(center - extent / 2 - LIGHT_FLANK), 0)
+        hi = int(center + extent / 2 + LIGHT_FLANK) + 1
+        shape = mark_shape(sign * (1.0 - profile[lo:hi] / level[lo:hi]), int(config.pad_px),
+                           int(config.smoothing_px), int(config.merge_gap_px))
+        if math.isfinite(shape[0]) and math.isfinite(shape[1]):
+            shapes.append(shape)
+    if not shapes:
+        return None
+    fill, gain = np.median(np.array(shapes), axis=0)
+    return float(fill), float(gain)
+
+
+def first_positions(regions: list[np.ndarray], polarity: str,
+                    config: TrackerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Return each frame's first position and extent (ROI columns; NaN: not found).
+
+    The strongest dip of the profile against the median profile over the frames (the
+    mark is elsewhere in most of them), its extent where the smoothed deficit exceeds a
+    quarter of its peak, and the deficit centroid over that extent and a pad.
+    """
+    profiles = np.array([r.mean(axis=0, dtype=np.float64) for r in regions])
+    profiles /= np.median(profiles, axis=1)[:, None]  # flicker, before the median
+    static = np.median(profiles, axis=0) * float(np.median(
+        [r.mean(dtype=np.float64) for r in regions]))
+    sign = 1.0 if polarity == 'dark' else -1.0
+    positions = np.full(len(regions), np.nan)
+    extents = np.full(len(regions), np.nan)
+    if static.min() < config.min_baseline:
+        return positions, extents
+    for n, profile in enumerate(profiles):
+        level = light_level(profile / static, polarity, order=0)
+        if level is None:
+            continue
+        d = sign * (1.0 - profile / (static * level))
+        dip = locate(d, 0.0, 0.25, config.smoothing_px, config.merge_gap_px)
+        first, last = dip.lo - config.pad_px, dip.hi + config.pad_px
+        if first < 1 or last > d.size - 2 or not dip.peak > config.min_depth:
+            continue
+        centroid, _, area = deficit_centroid(d, first, last, 1.0)
+        if area > 0:
+            positions[n], extents[n] = centroid, float(dip.hi - dip.lo + 1)
+    return positions, extents

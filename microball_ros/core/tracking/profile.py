@@ -8,6 +8,8 @@ depth in each row, a matched filter across rows estimated from the frame itself
 the mark), which removes uneven illumination; the mark is the relative deficit
 ``1 - profile / baseline`` (dark marks) or its negative (bright ones), ``relative_deficit``.
 ``deficit_noise`` estimates the per-column noise of the deficit from the plain plate.
+``light_level``: a frame's light over a profile already divided by the plate (the learned
+plate tracker's, core.tracking.plate): a low-order polynomial fitted beside the mark.
 Polarity detection belongs here; a static background is removed before the profile is built
 (core.tracking.background).
 """
@@ -16,6 +18,9 @@ import math
 
 import cv2
 import numpy as np
+
+LIGHT_ORDER = 2  # light_level: the light per frame over the ROI, a polynomial of this degree
+LIGHT_FLANK = 48.0  # light_level's flank while tracking: px on either side of the mark
 
 MAD_TO_SIGMA = 1.4826
 
@@ -175,3 +180,50 @@ def deficit_noise(deficit: np.ndarray, keep: np.ndarray) -> float:
         return 1e-6
     mad = float(np.median(np.abs(second - np.median(second))))
     return max(MAD_TO_SIGMA * mad / math.sqrt(6.0), 1e-6)
+
+
+def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
+                extent: float = 0.0, order: int | None = None,
+                flank: float | None = None) -> np.ndarray | None:
+    """Return this frame's light over a profile divided by the static field; None if dark.
+
+    The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
+    ``LIGHT_ORDER`` fitted to ``ratio`` outside ``extent`` (px, full width) around ``center``:
+    there the plate is its texture alone (or nothing, when ``ratio`` was divided by it). Refitted
+    without the columns far off the fit: without a centre, those in a dip (the mark); with
+    one, any (something passing over the plate). With ``flank`` (px), only the columns that
+    far beyond ``extent`` on either side are used, and the light is a straight line across
+    the mark (a constant when one side is missing).
+    """
+    sign = 1.0 if polarity == 'dark' else -1.0
+    order = LIGHT_ORDER if order is None else int(order)
+    w = ratio.size
+    u = np.linspace(-1.0, 1.0, w)
+    least = 4 * (order + 1) + 16
+    keep = np.ones(w, dtype=bool)
+    if math.isfinite(center):
+        offset = np.arange(w) - center
+        keep = np.abs(offset) > 0.5 * extent
+        if flank is not None:
+            keep &= np.abs(offset) <= 0.5 * extent + flank
+            sides = min(np.count_nonzero(keep & (offset < 0)),
+                        np.count_nonzero(keep & (offset > 0)))
+            order = min(order, 1) if sides >= 8 else 0
+            least = 12
+        if np.count_nonzero(keep) < least:
+            keep = np.ones(w, dtype=bool)
+    for _ in range(3):
+        level = np.polyval(np.polyfit(u[keep], ratio[keep], order), u)
+        if not level.min() > 0:
+            return None
+        # Columns far off the light (the mark, found in a dip, or something passing over
+        # the plate) are left out, and the light fitted again.
+        d = sign * (1.0 - ratio / level)
+        middle = float(np.median(d[keep]))
+        spread = 1.4826 * float(np.median(np.abs(d[keep] - middle)))
+        inside = np.abs(d - middle) <= 4.0 * spread if math.isfinite(center) else (
+            d < middle + 3.0 * spread)
+        if np.count_nonzero(keep & inside) < least or np.all(inside[keep]):
+            break
+        keep &= inside
+    return level
