@@ -165,33 +165,32 @@ class CentroidMarkTracker:
                     self._background.clear()
                 if self._background.inverse is None:
                     regions = None
-        if self.polarity is None:
-            for frame in frames:
-                self.measure(frame)
-                if self.polarity is not None:
-                    break
-        polarity = self.polarity
-        self.reset()
-        self.polarity = polarity
+        self._find_polarity(frames)
         if regions is not None:
+            polarity = self.polarity
             first = self._background.inverse
             self._background.learn(regions, self._footprints(frames), first)
             self.reset()
             self.polarity = polarity
             if self._background.inverse is not None and not self._keeps_mark(frames):
                 self._background.clear()
-                self.polarity = None if self.config.polarity == 'auto' else self.polarity
-                for frame in frames:
-                    if self.polarity is not None:
-                        break
-                    self.measure(frame)
-                polarity = self.polarity
-                self.reset()
-                self.polarity = polarity
+                if self.config.polarity == 'auto':
+                    self.polarity = None  # found again, on the frames as they are
+                self._find_polarity(frames)
         if self.polarity is not None and len(frames) > 0:
             self._plate.learn(np.stack([self._background.apply(roi_region(
                 frame, self.roi, self.name)) for frame in frames]), self.polarity,
                 int(self.config.smoothing_px), int(self.config.merge_gap_px))
+
+    def _find_polarity(self, frames) -> None:
+        """Learn the polarity (if not known) from the first frame the mark is found in; reset."""
+        for frame in frames:
+            if self.polarity is not None:
+                break
+            self.measure(frame)
+        polarity = self.polarity
+        self.reset()
+        self.polarity = polarity
 
     def _contrast(self, frames) -> float:
         """Return the mark's median contrast over ``frames`` (0 where not found); reset."""
