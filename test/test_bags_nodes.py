@@ -25,7 +25,7 @@ from microball_ros.io.bags.writer import BagWriter
 from microball_ros.io.compare import compare_messages, decode
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.recorder import Recorder
-from microball_ros.testing import Harness
+from microball_ros.testing import Harness, killable_env
 
 
 def _positions(n):
@@ -236,7 +236,8 @@ def test_killed_recorder_leaves_a_bag_that_reindex_repairs(tmp_path, ros_harness
                                                    DATA_QOS)
     recorder = node_process('recorder', {'output': bag_dir, 'topics': ['/tracking/positions'],
                                          'flush_period': 0.2},
-                            ready=lambda: publisher.get_subscription_count() >= 1)
+                            ready=lambda: publisher.get_subscription_count() >= 1,
+                            env=killable_env(tmp_path))  # SIGKILLed below
     sent = _positions(300)
     for msg in sent:
         publisher.publish(msg)

@@ -30,7 +30,7 @@ from microball_ros.io.bags.mcap_file import scan_file
 from microball_ros.io.bags.metadata import RCLPY_SERIES, bag_metadata, ros_distro
 from microball_ros.io.bags.writer import McapFileWriter
 from microball_ros.nodes.common import DATA_QOS
-from microball_ros.testing import Harness
+from microball_ros.testing import Harness, killable_env
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SAMPLE = os.path.join(ROOT, 'bags', 'paper_sample')
@@ -186,7 +186,8 @@ def killed_recording(tmp_path_factory):
         message.header.stamp.sec, message.header.stamp.nanosec = divmod(stamp, SECOND)
     recorder = subprocess.Popen(
         [sys.executable, '-m', 'microball_ros.nodes.recorder', '--ros-args', '--params-file',
-         str(parameters)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+         str(parameters)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        env=killable_env(folder))  # SIGKILLed below
     mcap = os.path.join(bag_dir, 'run_0.mcap')
     flushed = 450
     context = rclpy.Context()

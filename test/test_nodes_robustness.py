@@ -22,23 +22,39 @@ from microball_ros.core.windowing import PositionWindower, Skip, WindowSettings
 from microball_ros.io import conversions
 from microball_ros.nodes.common import DATA_QOS
 from microball_ros.nodes.friction_identifier import FrictionIdentifier
-from microball_ros.testing import Harness
+from microball_ros.testing import Harness, killable_env
 
 
-def _start_estimator():
+def _start_estimator(directory):
+    # Killed with SIGKILL, then restarted: without Fast DDS shared memory, or the restart
+    # would delete ports this process has mapped (killable_env).
     return subprocess.Popen([sys.executable, '-m', 'microball_ros.nodes.three_stage_estimator'],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env=killable_env(directory))
+
+
+def _shared_memory_ports(pid):
+    """Return the Fast DDS shared-memory ports process ``pid`` has mapped."""
+    with open(f'/proc/{pid}/maps') as maps:
+        return {line.split()[5] for line in maps if '/dev/shm/fastdds_port' in line}
+
+
+def _deleted_mappings(pid):
+    """Return the shared-memory files process ``pid`` still maps that have been deleted."""
+    with open(f'/proc/{pid}/maps') as maps:
+        return {line.split()[-2] for line in maps if line.rstrip().endswith('(deleted)')
+                and '/dev/shm/' in line}
 
 
 def _subscription_ids(node, topic):
     return {bytes(info.endpoint_gid) for info in node.get_subscriptions_info_by_topic(topic)}
 
 
-def test_killed_estimator_restarts_and_the_pipeline_resumes(ros_context):
+def test_killed_estimator_restarts_and_the_pipeline_resumes(ros_context, tmp_path):
     record = bench.simulate(bench.get_scenario('paper'), 40.0)
     identifier = FrictionIdentifier(context=ros_context)
     harness = Harness(ros_context, identifier)
-    estimator = _start_estimator()
+    estimator = _start_estimator(tmp_path)
     try:
         probe = harness.probe
         models, windows = [], []
@@ -49,6 +65,7 @@ def test_killed_estimator_restarts_and_the_pipeline_resumes(ros_context):
         # Started before anything publishes positions, the estimator waits quietly.
         harness.wait_for_subscribers(positions)
         assert estimator.poll() is None and windows == []
+        assert _shared_memory_ports(estimator.pid) == set()  # it leaves none behind
 
         def publish(frames):
             for k in frames:
@@ -63,11 +80,12 @@ def test_killed_estimator_restarts_and_the_pipeline_resumes(ros_context):
         estimator.wait(timeout=10)
         before = len(windows)
 
-        estimator = _start_estimator()
+        estimator = _start_estimator(tmp_path)
         harness.spin_until(
             lambda: _subscription_ids(probe, 'tracking/positions') - old_subscriptions,
             timeout=30, message='the restarted estimator')
         harness.wait_for_subscribers(positions)
+        assert _deleted_mappings(os.getpid()) == set()  # no port of this process deleted
         publish(range(600, 1200))  # 20 s more, after a gap of 5 s
         harness.spin_until(lambda: len(windows) >= before + 8, timeout=60,
                            message='windows from the restarted estimator')

@@ -19,9 +19,9 @@ See README.md beside this file: "Testing your own node".
 """
 
 from microball_ros.testing.harness import Harness
-from microball_ros.testing.process import NodeExited, NodeProcess
+from microball_ros.testing.process import NodeExited, NodeProcess, killable_env
 from microball_ros.testing.replay import Replay, replay, testing_spec
 from microball_ros.testing.samples import SAMPLE_BAGS, sample_bag
 
-__all__ = ['Harness', 'NodeExited', 'NodeProcess', 'Replay', 'SAMPLE_BAGS', 'replay',
-           'sample_bag', 'testing_spec']
+__all__ = ['Harness', 'NodeExited', 'NodeProcess', 'Replay', 'SAMPLE_BAGS', 'killable_env',
+           'replay', 'sample_bag', 'testing_spec']

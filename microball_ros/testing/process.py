@@ -23,6 +23,58 @@ import yaml
 _PR_SET_PDEATHSIG = 1
 
 
+_PROFILES = ('<?xml version="1.0" encoding="UTF-8"?>\n'
+             '<profiles xmlns="http://www.eprosima.com">\n</profiles>\n')
+# Loopback UDP only: no shared memory, nothing sent beyond this machine.
+_LOOPBACK_ONLY = """  <transport_descriptors>
+    <transport_descriptor>
+      <transport_id>microball_loopback_udp</transport_id>
+      <type>UDPv4</type>
+      <interfaceWhiteList><address>127.0.0.1</address></interfaceWhiteList>
+    </transport_descriptor>
+  </transport_descriptors>
+  <participant profile_name="microball_killable" is_default_profile="true">
+    <rtps>
+      <useBuiltinTransports>false</useBuiltinTransports>
+      <userTransports><transport_id>microball_loopback_udp</transport_id></userTransports>
+      <builtin>
+        <initialPeersList>
+          <locator><udpv4><address>127.0.0.1</address></udpv4></locator>
+        </initialPeersList>
+      </builtin>
+    </rtps>
+  </participant>
+"""
+
+
+def killable_env(directory, base=None):
+    """Return a copy of ``base`` (os.environ) for a node a test will SIGKILL: no shared memory.
+
+    A Fast DDS participant killed with SIGKILL leaves its shared-memory ports behind, and the
+    next participant to open one of them (a restarted node) removes it as a zombie while the
+    processes that were sending to the killed one still have it mapped: they go on writing to
+    a deleted segment and can crash (eProsima/Fast-DDS#4728; our CI saw a segfault in
+    destroy_node after a killed node's restart). Under ``ROS_AUTOMATIC_DISCOVERY_RANGE=
+    LOCALHOST`` rmw_fastrtps always adds the shared-memory transport, so this node's range is
+    ``SYSTEM_DEFAULT`` (rmw leaves the transports alone) with a Fast DDS profile, written to
+    ``directory``, that gives it UDP on 127.0.0.1 only and localhost as its initial peer: it
+    still talks to nothing beyond this machine, and the other processes reach it over
+    loopback. The profile keeps what the inherited one (the lock-step profile) holds.
+    """
+    env = dict(os.environ if base is None else base)
+    inherited = env.get('FASTDDS_DEFAULT_PROFILES_FILE')
+    text = _PROFILES
+    if inherited and os.path.isfile(inherited):
+        with open(inherited) as handle:
+            text = handle.read()
+    path = os.path.join(directory, 'fastdds_killable.xml')
+    with open(path, 'w') as handle:
+        handle.write(text.replace('</profiles>', _LOOPBACK_ONLY + '</profiles>'))
+    env['FASTDDS_DEFAULT_PROFILES_FILE'] = path
+    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SYSTEM_DEFAULT'
+    return env
+
+
 class NodeExited(AssertionError):
     """A node process exited while the test needed it running."""
 
