@@ -140,6 +140,11 @@ CASES = [
          exposure_fraction=0.1),
     Case('exposure_full', 'baseline, exposure the whole frame period (1/30 s)',
          exposure_fraction=1.0),
+    Case('textured_full', 'the cross on the moving mild texture, exposure the whole frame '
+         'period (1/30 s)', category='textured', mark='cross', plate='textured',
+         exposure_fraction=1.0),
+    Case('speckle_full', 'the rectangle on fully developed speckle, exposure the whole frame '
+         'period (1/30 s)', category='textured', plate='speckle', exposure_fraction=1.0),
 ]
 QUICK = ('baseline', 'bright_blob', 'textured', 'total_occlusion', 'exposure_full')
 
