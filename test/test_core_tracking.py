@@ -3,6 +3,7 @@
 from dataclasses import replace
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -234,6 +235,17 @@ def test_lossless_video_and_image_folder_track_like_arrays(tmp_path):
             np.testing.assert_array_equal(other.quality[plate], from_arrays.quality[plate])
     colour = np.repeat(video.frames[:2, :, :, None], 3, axis=3)
     np.testing.assert_array_equal(np.array(list(iter_frames(colour))), video.frames[:2])
+    # A 16-bit TIFF sequence (a scientific camera's export) tracks like its 16-bit arrays.
+    deep = video.frames.astype(np.uint16) * 257
+    tiffs = tmp_path / 'tiff'
+    tiffs.mkdir()
+    for n, frame in enumerate(deep):
+        assert cv2.imwrite(str(tiffs / f'frame_{n:05d}.tif'), frame)
+    from_tiff = track_video(str(tiffs), video.rois, SCALE, fps=30.0)
+    from_deep = track(deep, video.rois, SCALE, fps=30.0)
+    for plate in ('slider', 'stator'):
+        np.testing.assert_array_equal(from_tiff.position[plate], from_deep.position[plate])
+        assert np.count_nonzero(np.isfinite(from_tiff.position[plate])) == len(deep)
 
 
 def test_symmetric_center_is_subpixel_exact():
