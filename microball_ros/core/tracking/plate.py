@@ -96,6 +96,12 @@ NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
 PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
+# A frame whose mark gain (against the recent frames') is further from 1 than GAIN_SPREADS
+# times its scatter over the priming frames, and than GAIN_FLOOR, is not reported: something
+# over the plate beside the mark (a passing ball) moves the fit by pixels while its residual
+# stays small. Clear frames stay within 3-4 spreads (0.003-0.008 each) on our textures.
+GAIN_SPREADS = 6.0
+GAIN_FLOOR = 0.03
 
 
 class PlateMarkTracker:
@@ -129,6 +135,8 @@ class PlateMarkTracker:
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
         self._offset = 0.0  # px added to the plate's positions (on a plain plate)
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
+        self._gain_spread = math.inf  # the scatter of the gain over priming (``_calibrate``)
+        self._gain_log: list[float] | None = None  # gain / recent gains - 1, while priming
         self.shape: tuple[float, float] | None = None  # plain plate: mark_shape's fill, gain
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
@@ -205,6 +213,7 @@ class PlateMarkTracker:
             if self.plate is not None:
                 self._relearn(regions, frames)
                 self._calibrate(frames)
+        self._gain_log = None
         self.reset()
 
     def _calibrate(self, frames, tracked=None) -> None:
@@ -219,8 +228,11 @@ class PlateMarkTracker:
         ``MAX_SIGMA_SCALE``; a larger ratio is the motion fit's failure, not the tracker's).
         """
         self._sigma_scale = 1.0
+        self._gain_spread = math.inf
         positions, found = (self._track_priming(frames, self.measure) if tracked is None
                             else tracked)
+        if self._gain_log is not None and len(self._gain_log) >= 8:  # the plate's last pass
+            self._gain_spread = 1.4826 * float(np.median(np.abs(self._gain_log)))
         sigmas = np.array([m.sigma_px for m in found if m.valid])
         jitter = motion_jitter([positions])[0]
         if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
@@ -233,6 +245,7 @@ class PlateMarkTracker:
         """Return the positions (ROI columns, NaN: none) and measurements of ``measure``."""
         self.reset()
         x = self.roi[0]
+        self._gain_log = []
         found = [measure(frame) for frame in frames]
         self.reset()
         return np.array([m.position_px - x if m.valid else math.nan for m in found]), found
@@ -283,6 +296,7 @@ class PlateMarkTracker:
         self._half = self._outer = 8.0
         self._shift, self._rms, self._offset = 0.0, 1.0, 0.0
         self._sigma_scale = 1.0
+        self._gain_spread = math.inf
         self.reset()
 
     def _relearn(self, regions, frames) -> None:
@@ -522,6 +536,12 @@ class PlateMarkTracker:
         if position - extent < 1 or position + extent > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
         reference = float(np.median(self._gains)) if len(self._gains) >= 3 else 1.0
+        if len(self._gains) >= 3:
+            if self._gain_log is not None:
+                self._gain_log.append(gain / reference - 1.0)
+            if abs(gain / reference - 1.0) > max(GAIN_SPREADS * self._gain_spread, GAIN_FLOOR):
+                # Not kept among the recent gains: the frames after it are judged as before.
+                return self._invalid('mark area changed', contrast=peak)
         self._gains.append(gain)
         q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / cfg.area_tolerance) ** 2)
         excess = max(rms / self._rms - cfg.match_tolerance, 0.0)
