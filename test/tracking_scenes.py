@@ -59,6 +59,7 @@ class SceneSpec:
     static_transmission: float = 0.0
     flicker: float = 0.0
     gradient: tuple = (0.2, 0.1)
+    drift: float = 0.0  # the x gradient goes from gradient[0] - drift to + drift over the video
     psf: float = 0.9
     gain: float = 20.0
     read_noise: float = 1.0
@@ -184,7 +185,11 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=()):
                     inside = np.clip(radius + 0.5 - np.hypot(cols[None, :] - cx,
                                                              rows[band][:, None] - cy), 0, 1)
                     scene[band] += inside * (level - scene[band])
-        mean = np.clip(scene * light * flicker[n], 0, None)
+        lit = light
+        if spec.drift:
+            change = spec.drift * (2.0 * n / max(n_frames - 1, 1) - 1.0)
+            lit = light * (1 + change * xn)[None, :]
+        mean = np.clip(scene * lit * flicker[n], 0, None)
         if keep_expected:
             expected.append(mean)
         noise = np.sqrt(mean / spec.gain + spec.read_noise ** 2)

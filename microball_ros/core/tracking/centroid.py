@@ -15,7 +15,9 @@ partly hidden or something dark beside it).
 A smear longer than ``LONG_SMEAR`` of the ROI (15 fps at a whole-frame exposure) leaves too
 little plate in its own frame for a baseline: it is measured against the plain plate learned
 while priming (core.tracking.background.StaticPlate) times the frame's gain, its window runs
-to the noise, and a window that cuts the smear rejects the frame.
+to the noise, and a window that cuts the smear rejects the frame. That plate is learned only
+when the priming frames, each with its own baseline, show long smears or lose frames
+(``_smears_long``).
 """
 
 from collections import deque
@@ -54,6 +56,7 @@ LONG_SMEAR = 0.25
 SMEAR_THRESHOLD = 0.01
 SHORT_FIRST = 0.6
 CUT_FRACTION = 0.05
+LOST_FRACTION = 0.2  # priming frames lost with their own baseline: smears may be long
 
 
 def mark_rows(weights: list[np.ndarray],
@@ -177,10 +180,28 @@ class CentroidMarkTracker:
                 if self.config.polarity == 'auto':
                     self.polarity = None  # found again, on the frames as they are
                 self._find_polarity(frames)
-        if self.polarity is not None and len(frames) > 0:
+        if self.polarity is not None and len(frames) > 0 and self._smears_long(frames):
             self._plate.learn(np.stack([self._background.apply(roi_region(
                 frame, self.roi, self.name)) for frame in frames]), self.polarity,
                 int(self.config.smoothing_px), int(self.config.merge_gap_px))
+
+    def _smears_long(self, frames) -> bool:
+        """Return True if the priming frames may hold smears too long for a baseline; reset.
+
+        Measured with each frame's own baseline: more than ``LOST_FRACTION`` of the frames
+        lost, or the 90th percentile of the mark's extent (smear and all) at least
+        ``SHORT_FIRST`` times ``LONG_SMEAR`` of the ROI's width. Only then is the plain plate
+        learned and tried on every frame: a short mark under a drifting illumination
+        gradient would look long against it (times one gain), and it costs time.
+        """
+        polarity = self.polarity
+        found = [self.measure(frame) for frame in frames]
+        self.reset()
+        self.polarity = polarity
+        extents = [m.extent_px for m in found if m.valid and math.isfinite(m.extent_px)]
+        if len(extents) < (1.0 - LOST_FRACTION) * len(found):
+            return True
+        return float(np.percentile(extents, 90)) >= SHORT_FIRST * LONG_SMEAR * self.roi[2]
 
     def _find_polarity(self, frames) -> None:
         """Learn the polarity (if not known) from the first frame the mark is found in; reset."""
