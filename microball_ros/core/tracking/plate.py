@@ -102,6 +102,7 @@ MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_ca
 # stays small. Clear frames stay within 3-4 spreads (0.003-0.008 each) on our textures.
 GAIN_SPREADS = 6.0
 GAIN_FLOOR = 0.03
+GAIN_LASTING = 30  # so many frames in a row off the recent gains (1 s at 30 fps): a new gain
 
 
 class PlateMarkTracker:
@@ -137,6 +138,7 @@ class PlateMarkTracker:
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
         self._gain_spread = math.inf  # the scatter of the gain over priming (``_calibrate``)
         self._gain_log: list[float] | None = None  # gain / recent gains - 1, while priming
+        self._gains_off: list[float] = []  # the gains of the frames in a row the guard refused
         self.shape: tuple[float, float] | None = None  # plain plate: mark_shape's fill, gain
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
@@ -169,6 +171,7 @@ class PlateMarkTracker:
         """Forget the track (what was learned is kept)."""
         self._predictor.reset()
         self._gains.clear()
+        self._gains_off = []
         polarity = self._fallback.polarity
         self._fallback.reset()
         self._fallback.polarity = polarity
@@ -540,8 +543,15 @@ class PlateMarkTracker:
             if self._gain_log is not None:
                 self._gain_log.append(gain / reference - 1.0)
             if abs(gain / reference - 1.0) > max(GAIN_SPREADS * self._gain_spread, GAIN_FLOOR):
-                # Not kept among the recent gains: the frames after it are judged as before.
-                return self._invalid('mark area changed', contrast=peak)
+                # Not kept among the recent gains: the frames after it are judged as before,
+                # unless it lasts (GAIN_LASTING frames in a row): then it is the new gain.
+                self._gains_off.append(gain)
+                if len(self._gains_off) < GAIN_LASTING:
+                    return self._invalid('mark area changed', contrast=peak)
+                self._gains.clear()
+                self._gains.extend(self._gains_off[-3:])
+                reference = float(np.median(self._gains))
+            self._gains_off = []
         self._gains.append(gain)
         q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / cfg.area_tolerance) ** 2)
         excess = max(rms / self._rms - cfg.match_tolerance, 0.0)
