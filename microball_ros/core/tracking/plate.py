@@ -80,8 +80,16 @@ from microball_ros.core.tracking.profile import (
 )
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent
+from microball_ros.core.tracking.smear import (
+    PeriodicMotion,
+    local_kernel,
+    path_range,
+    smear_boxes,
+    smear_start,
+)
 
 ROUNDS = 4
+SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 # A plain plate: the learned plate is tried only for a mark with narrow parts (a cross, bars),
@@ -95,6 +103,8 @@ NARROW_FILL = 0.72
 NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
 PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
+SMEAR_JITTER = 0.4  # px: a long smear's plate tracking the priming frames less steadily: refused
+SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 
 
@@ -127,6 +137,8 @@ class PlateMarkTracker:
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
         self._predictor = MotionPredictor()
         self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
+        self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
+        self._refused = False  # a long smear whose plate could not be learned: all NaN
         self._offset = 0.0  # px added to the plate's positions (on a plain plate)
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
         self.shape: tuple[float, float] | None = None  # plain plate: mark_shape's fill, gain
@@ -195,15 +207,23 @@ class PlateMarkTracker:
                 if len(sample) == 12:
                     break
         self.reset()
-        if len(sample) < 8:
-            return
+        if len(sample) < 8:  # the centroid misses most frames (long smears): the boxes instead
+            centres, sizes = smear_boxes(regions, self.polarity)
+            sample, marks = regions, [(c - z / 2.0 - 16.0, c + z / 2.0 + 16.0)
+                                      for c, z in zip(centres, sizes, strict=True)]
         self.texture = texture_score(sample, marks)
         if self.texture < TEXTURE_SCORE:
             self._prime_plain(regions, frames)  # calibrates a plate it keeps
         else:
-            self._learn(regions)
-            if self.plate is not None:
+            start = smear_start(regions, self.polarity, self.exposure_fraction)
+            if start is not None:
+                self._motion = start[4]
+            self._learn(regions, start)
+            if self.plate is not None and self._motion is None:
                 self._relearn(regions, frames)
+            if self._motion is not None:
+                self._check_smear(frames)
+            elif self.plate is not None:
                 self._calibrate(frames)
         self.reset()
 
@@ -228,6 +248,24 @@ class PlateMarkTracker:
         ratio = jitter / float(np.sqrt(np.mean(sigmas ** 2)))
         if 1.0 < ratio <= MAX_SIGMA_SCALE:
             self._sigma_scale = ratio
+
+    def _check_smear(self, frames) -> None:
+        """Keep a long smear's plate only if its track over the priming frames is steady.
+
+        A plate learned from long smears can be registered pixels off; the track's scatter
+        about a smooth periodic motion (``motion_jitter``) shows it. Above ``SMEAR_JITTER``
+        px, or with fewer than half the frames tracked, every frame is refused: the centroid
+        of a smear on a texture is tens of pixels off, and a lost frame is better than a
+        wrong one.
+        """
+        tracked = self._track_priming(frames, self.measure) if self.plate is not None else None
+        jitter = math.nan if tracked is None else motion_jitter([tracked[0]], 2)[0]
+        if tracked is None or np.count_nonzero(np.isfinite(tracked[0])) < 0.5 * len(frames) \
+                or not jitter <= SMEAR_JITTER:
+            self._forget()
+            self._refused = True
+            return
+        self._calibrate(frames, tracked)
 
     def _track_priming(self, frames, measure):
         """Return the positions (ROI columns, NaN: none) and measurements of ``measure``."""
@@ -278,11 +316,12 @@ class PlateMarkTracker:
 
     def _forget(self) -> None:
         """Drop a learned plate: every frame is measured by the centroid tracker again."""
-        self.plate = self._full = None
+        self.plate = self._full = self._motion = None
         self.weights = self.static = self.flat = None
         self._half = self._outer = 8.0
         self._shift, self._rms, self._offset = 0.0, 1.0, 0.0
         self._sigma_scale = 1.0
+        self._refused = False
         self.reset()
 
     def _relearn(self, regions, frames) -> None:
@@ -311,7 +350,11 @@ class PlateMarkTracker:
         self.flat = row_flat_field(regions, self.weights, positions, spans)
         if self.flat is not None:
             regions = [r / self.flat for r in regions]
-        self._learn(regions, (positions, kernels))
+        start = (positions, kernels)
+        if self._motion is not None:  # a long smear: extents and the mark's width come along
+            start = (positions, kernels, spans - 2.0 * self.config.pad_px - 8.0,
+                     2.0 * before[7], self._motion)
+        self._learn(regions, start)
         if self.plate is None or not self._rms <= before[5]:
             (self.plate, self._full, self._shift, self._outer, self.static, self._rms,
              self.weights, self._half, self.flat) = before
@@ -329,7 +372,9 @@ class PlateMarkTracker:
             return
         self.plate = None
         positions, extents = first_positions(regions, polarity, cfg)
-        if start is not None:
+        if start is not None and len(start) > 2:  # a long smear: the extents come with it
+            positions, extents = (np.array(v, dtype=float) for v in (start[0], start[2]))
+        elif start is not None:
             positions = np.array(start[0], dtype=float)
             typical = float(np.nanmedian(extents)) if np.any(np.isfinite(extents)) else 0.0
             extents = np.where(np.isfinite(extents), extents, typical)
@@ -364,7 +409,8 @@ class PlateMarkTracker:
                 if level is None:
                     return
                 profiles[n] /= level
-        self._half = 0.5 * float(np.nanpercentile(extents, 10))
+        self._half = 0.5 * float(np.nanpercentile(extents, 10) if start is None
+                                 or len(start) < 4 else start[3])
         f = self.exposure_fraction
         kernels = np.full((positions.size, 2), np.nan)
         if start is not None:
@@ -377,7 +423,7 @@ class PlateMarkTracker:
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
         rms = solver.learn(positions, kernels, reach + 8.0,
-                           ROUNDS)
+                           ROUNDS if self._motion is None else SMEAR_ROUNDS)
         if solver.plate is None:
             return
         center = solver.plate.mark_center(reach)
@@ -385,7 +431,9 @@ class PlateMarkTracker:
             return
         longest = float(np.nanmax(solver.kernels[:, 0])) if np.any(
             np.isfinite(solver.kernels[:, 0])) else 0.0
-        local = solver.plate.local(center, reach + 8.0 + min(longest, cfg.max_blur_px) + 16.0)
+        if self._motion is None:
+            longest = min(longest, cfg.max_blur_px)
+        local = solver.plate.local(center, reach + 8.0 + longest + 16.0)
         self.plate = local
         self._full, self._shift = solver.plate, center
         c = local.center
@@ -441,6 +489,8 @@ class PlateMarkTracker:
         along the plate: a mark it finds partly hidden, or a plate position more than
         ``PLAIN_AGREE`` standard errors (and 0.1 px) from its own, is not reported.
         """
+        if self._refused:
+            return self._invalid('long smear on a textured plate not learned')
         if self.plate is None or self.weights is None:
             return self._fallback.measure(frame)
         if self.texture >= TEXTURE_SCORE:
@@ -476,7 +526,10 @@ class PlateMarkTracker:
         prediction = self._predictor.predict()
         f = self.exposure_fraction
         kernel = None
-        if prediction is not None and math.isfinite(prediction.before):
+        if prediction is not None and self._motion is not None:
+            kernel = local_kernel(prediction.previous, prediction.column, prediction.following,
+                                  self._motion.omega, f)
+        elif prediction is not None and math.isfinite(prediction.before):
             kernel = (abs(prediction.following - prediction.previous) / 2.0 * f,
                       (prediction.following - 2 * prediction.column + prediction.previous)
                       * f * f / 2.0)
@@ -517,9 +570,14 @@ class PlateMarkTracker:
         position = delta + j0 + plate.center
         extent = reach + 0.5 * blur + 0.25 * abs(curve)
         peak = gain * float(plate.values.max())
-        if abs(position - start) > 4.0 or not math.isfinite(position):
+        first, last = position - extent, position + extent
+        moved = 4.0
+        if self._motion is not None:  # a long smear: the search finds its box, the fit the mark
+            moved += SMEAR_MOVE * blur
+            first, last = (position + v for v in path_range(blur, curve, reach))
+        if abs(position - start) > moved or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
-        if position - extent < 1 or position + extent > w - 2:
+        if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
         reference = float(np.median(self._gains)) if len(self._gains) >= 3 else 1.0
         self._gains.append(gain)
@@ -556,7 +614,8 @@ class PlateMarkTracker:
             kernels = [kernel if kernel is not None else (0.0, 0.0)]
         else:
             lo, hi = 0, d.size
-            kernels = [(b, 0.0) for b in SEARCH_BLURS]
+            kernels = ([(b, 0.0) for b in SEARCH_BLURS] if self._motion is None
+                       else self._motion.bank())
             if kernel is not None:
                 kernels.append(kernel)
         lo, hi = max(lo, 0), min(hi, d.size)
