@@ -50,6 +50,10 @@ averaged over the exposure. The tracker
 4. checks the mark clear of the ROI edges, its contrast ``g`` against recent frames (a covered
    mark loses contrast) and the fit's residual against the residuals while priming: a failed
    check gives NaN with a quality below ``min_quality``; positions are never invented.
+
+Long smears (core.tracking.smear: a path over ``LONG_BLUR`` of the ROI) start step 1 from a
+periodic motion fitted to the smears, and search a bank of its kernels; the plate is kept only
+if its priming track passes ``smear_verdict``, else every frame is NaN.
 """
 
 from collections import deque
@@ -63,6 +67,7 @@ from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, grid_window
+from microball_ros.core.tracking.plate_search import match_plate, plate_level
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
@@ -82,10 +87,11 @@ from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent
 from microball_ros.core.tracking.smear import (
     PeriodicMotion,
+    least_smeared,
     local_kernel,
     path_range,
-    smear_boxes,
     smear_start,
+    smear_verdict,
 )
 
 ROUNDS = 4
@@ -103,7 +109,6 @@ NARROW_FILL = 0.72
 NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
 PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
-SMEAR_JITTER = 0.4  # px: a long smear's plate tracking the priming frames less steadily: refused
 SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 
@@ -197,33 +202,22 @@ class PlateMarkTracker:
                             if 'static_background' in self._fallback.learned else None)
         regions = [self._region(frame) for frame in frames]
         x = self.roi[0]
-        sample, marks = [], []
-        for region, frame in zip(regions, frames, strict=True):
-            m = self._fallback.measure(frame)
-            if m.valid:
-                sample.append(region)
-                marks.append((m.position_px - x - m.extent_px / 2.0 - 16.0,
-                              m.position_px - x + m.extent_px / 2.0 + 16.0))
-                if len(sample) == 12:
-                    break
+        sample, marks = least_smeared(self._fallback.measure, frames, regions, x,
+                                      self.polarity)
         self.reset()
-        if len(sample) < 8:  # the centroid misses most frames (long smears): the boxes instead
-            centres, sizes = smear_boxes(regions, self.polarity)
-            sample, marks = regions, [(c - z / 2.0 - 16.0, c + z / 2.0 + 16.0)
-                                      for c, z in zip(centres, sizes, strict=True)]
+        if sample is None:
+            return
         self.texture = texture_score(sample, marks)
         if self.texture < TEXTURE_SCORE:
             self._prime_plain(regions, frames)  # calibrates a plate it keeps
         else:
             start = smear_start(regions, self.polarity, self.exposure_fraction)
-            if start is not None:
-                self._motion = start[4]
+            self._motion = None if start is None else start[4]  # a long smear (smear.py)
             self._learn(regions, start)
-            if self.plate is not None and self._motion is None:
-                self._relearn(regions, frames)
             if self._motion is not None:
                 self._check_smear(frames)
             elif self.plate is not None:
+                self._relearn(regions, frames)
                 self._calibrate(frames)
         self.reset()
 
@@ -250,18 +244,11 @@ class PlateMarkTracker:
             self._sigma_scale = ratio
 
     def _check_smear(self, frames) -> None:
-        """Keep a long smear's plate only if its track over the priming frames is steady.
-
-        A plate learned from long smears can be registered pixels off; the track's scatter
-        about a smooth periodic motion (``motion_jitter``) shows it. Above ``SMEAR_JITTER``
-        px, or with fewer than half the frames tracked, every frame is refused: the centroid
-        of a smear on a texture is tens of pixels off, and a lost frame is better than a
-        wrong one.
-        """
+        """Keep a long smear's plate if ``smear_verdict`` trusts it; else refuse every frame."""
         tracked = self._track_priming(frames, self.measure) if self.plate is not None else None
-        jitter = math.nan if tracked is None else motion_jitter([tracked[0]], 2)[0]
-        if tracked is None or np.count_nonzero(np.isfinite(tracked[0])) < 0.5 * len(frames) \
-                or not jitter <= SMEAR_JITTER:
+        centroid = self._track_priming(frames, self._fallback.measure)[0]
+        if tracked is None or self._motion is None or not smear_verdict(
+                tracked[0], centroid, self._motion):
             self._forget()
             self._refused = True
             return
@@ -350,11 +337,7 @@ class PlateMarkTracker:
         self.flat = row_flat_field(regions, self.weights, positions, spans)
         if self.flat is not None:
             regions = [r / self.flat for r in regions]
-        start = (positions, kernels)
-        if self._motion is not None:  # a long smear: extents and the mark's width come along
-            start = (positions, kernels, spans - 2.0 * self.config.pad_px - 8.0,
-                     2.0 * before[7], self._motion)
-        self._learn(regions, start)
+        self._learn(regions, (positions, kernels))
         if self.plate is None or not self._rms <= before[5]:
             (self.plate, self._full, self._shift, self._outer, self.static, self._rms,
              self.weights, self._half, self.flat) = before
@@ -422,8 +405,7 @@ class PlateMarkTracker:
                               (after - 2 * middle + before) * f * f / 2)
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
-        rms = solver.learn(positions, kernels, reach + 8.0,
-                           ROUNDS if self._motion is None else SMEAR_ROUNDS)
+        rms = solver.learn(positions, kernels, reach + 8, SMEAR_ROUNDS if self._motion else ROUNDS)
         if solver.plate is None:
             return
         center = solver.plate.mark_center(reach)
@@ -464,16 +446,8 @@ class PlateMarkTracker:
 
     def _plate_level(self, center, kernel):
         """Return the learned plate over the ROI (1 - sign D, smeared) with the mark at center."""
-        full = self._full
-        if full is None:
-            return None
         sign = 1.0 if self.polarity == 'dark' else -1.0
-        s = center - self._shift
-        j0 = int(round(s)) - full.center
-        blur, curve = kernel if kernel is not None else (0.0, 0.0)
-        model = full.model(s - round(s), abs(blur), curve)
-        level = 1.0 - sign * model.take(np.arange(self.roi[2]) - j0, mode='wrap')
-        return np.clip(level, 0.05, None)
+        return plate_level(self._full, center - self._shift, sign, kernel, self.roi[2])
 
     def _span(self, blur, kernel):
         """Return the width (px) the smeared mark can cover: the light is fitted outside it."""
@@ -570,11 +544,10 @@ class PlateMarkTracker:
         position = delta + j0 + plate.center
         extent = reach + 0.5 * blur + 0.25 * abs(curve)
         peak = gain * float(plate.values.max())
-        first, last = position - extent, position + extent
-        moved = 4.0
+        first, last, moved = position - extent, position + extent, 4.0
         if self._motion is not None:  # a long smear: the search finds its box, the fit the mark
-            moved += SMEAR_MOVE * blur
-            first, last = (position + v for v in path_range(blur, curve, reach))
+            moved, (first, last) = 4.0 + SMEAR_MOVE * blur, path_range(blur, curve, reach)
+            first, last = first + position, last + position
         if abs(position - start) > moved or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
         if first < 1 or last > w - 2:
@@ -602,11 +575,8 @@ class PlateMarkTracker:
         Gated around the prediction (one kernel, the predicted one) when there is one, else
         over the whole ROI with a bank of blurs. Score: correlation over the model's norm.
         """
-        plate = self.plate
-        if plate is None:
+        if self.plate is None:
             return None
-        c = plate.center
-        reach = self._half + self.config.pad_px
         if prediction is not None:
             gate = 6.0 * prediction.spread + 3.0
             lo = int(math.floor(prediction.column - gate))
@@ -621,27 +591,7 @@ class PlateMarkTracker:
         lo, hi = max(lo, 0), min(hi, d.size)
         if hi <= lo:
             return None
-        best = None
-        for blur, curve in kernels:
-            core = min(int(math.ceil(reach + 0.5 * blur + 0.25 * abs(curve))) + 2, c - 1)
-            template = plate.model(0.0, blur, curve)[c - core:c + core + 1]
-            norm = math.sqrt(float(template @ template))
-            if norm <= 0:
-                continue
-            padded = np.zeros(hi - lo + 2 * core)
-            a, b = lo - core, hi + core
-            padded[max(a, 0) - a:min(b, d.size) - a] = d[max(a, 0):min(b, d.size)]
-            score = np.correlate(padded, template, mode='valid') / norm
-            k = int(np.argmax(score))
-            if best is None or score[k] > best[0]:
-                offset = 0.0
-                if 0 < k < score.size - 1:
-                    left, mid, right = score[k - 1], score[k], score[k + 1]
-                    den = left - 2 * mid + right
-                    if den < 0:
-                        offset = float(np.clip(0.5 * (left - right) / den, -0.5, 0.5))
-                best = (float(score[k]), lo + k + offset, blur, curve)
-        return None if best is None else best[1:]
+        return match_plate(self.plate, d, lo, hi, kernels, self._half + self.config.pad_px)
 
     def _invalid(self, reason, quality=0.0, contrast=math.nan):
         self._predictor.add(math.nan)

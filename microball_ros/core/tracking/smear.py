@@ -23,10 +23,14 @@ import warnings
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from microball_ros.core.tracking.priming import motion_jitter
 from microball_ros.core.tracking.profile import light_level
 
 HARMONICS = 2
 OUTLIER_PX = 3.0  # a centre further than this (and 3.5 robust sigmas) from the fit is left out
+SMEAR_JITTER = 0.4  # px: a long smear's plate tracking the priming frames less steadily: refused
+SMEAR_BIAS = 0.5  # px: ... or registered further than this from the centroid on sharp frames
+SMEAR_SHARP = 16.0  # px: a priming frame whose path is shorter is sharp (``smear_verdict``)
 LONG_BLUR = 0.3  # of the ROI's width: a kernel longer than this is a long smear
 _U = np.linspace(-0.5, 0.5, 33)
 _PATH = np.column_stack([np.ones_like(_U), _U, _U * _U - 1.0 / 12.0])
@@ -351,3 +355,56 @@ def path_range(blur: float, curve: float, reach: float = 0.0) -> tuple[float, fl
         points.append(-blur / (2.0 * curve))
     values = [blur * u + curve * (u * u - 1.0 / 12.0) for u in points]
     return min(values) - reach, max(values) + reach
+
+
+def smear_verdict(tracked: np.ndarray, centroid: np.ndarray, motion: PeriodicMotion) -> bool:
+    """Return True if a long smear's learned plate can be trusted, from its priming track.
+
+    ``tracked`` and ``centroid``: the priming frames' positions (ROI columns, NaN: none) by
+    the learned plate and by the centroid tracker. A plate learned from long smears can be
+    badly learned or registered pixels off: the track's scatter about a smooth periodic
+    motion (``motion_jitter``, two harmonics: more alias at five frames per period) shows
+    the first, its mean difference from the centroid's over the sharp frames (the path
+    shorter than ``SMEAR_SHARP`` px; the centroid is exact on average) the second. False
+    above ``SMEAR_JITTER`` or ``SMEAR_BIAS`` px, with fewer than 3 sharp frames tracked by
+    both, or with fewer than half the frames tracked.
+    """
+    count = tracked.size
+    if np.count_nonzero(np.isfinite(tracked)) < 0.5 * count:
+        return False
+    if not motion_jitter([tracked], 2)[0] <= SMEAR_JITTER:
+        return False
+    _, kernels = motion.kernels(np.arange(count))
+    sharp = (kernels[:, 0] + 0.25 * np.abs(kernels[:, 1]) < SMEAR_SHARP) & np.isfinite(
+        centroid) & np.isfinite(tracked)
+    if np.count_nonzero(sharp) < 3:
+        return False
+    return bool(abs(float(np.mean(tracked[sharp] - centroid[sharp]))) <= SMEAR_BIAS)
+
+
+def least_smeared(measure, frames, regions, x, polarity):
+    """Return the regions and the mark's columns (first, last) to score the texture on.
+
+    ``measure``: the centroid tracker's, on ``frames``; ``regions`` their ROIs, ``x`` the
+    ROI's first column. The first 12 frames it finds the mark in; with long smears (their
+    median extent over ``LONG_BLUR`` of the ROI, which hide a moving texture) the 12 least
+    smeared of all, or, when it finds fewer than 8, the 12 shortest ``smear_boxes``.
+    (None, None) when it finds fewer than 8 and the smears are not long.
+    """
+    width = regions[0].shape[1]
+    found = []
+    for n, frame in enumerate(frames):
+        m = measure(frame)
+        if m.valid:
+            found.append((m.extent_px, n, m.position_px - x))
+            if len(found) == 12 and not np.median([f[0] for f in found]) > LONG_BLUR * width:
+                break
+    if len(found) < 8:
+        centres, sizes = smear_boxes(regions, polarity)
+        if not np.nanmedian(sizes) > LONG_BLUR * width:
+            return None, None
+        found = [(z, n, c) for n, (c, z) in enumerate(zip(centres, sizes, strict=True))
+                 if math.isfinite(c)]
+    found = sorted(found)[:12]
+    return ([regions[n] for _, n, _ in found],
+            [(c - z / 2.0 - 16.0, c + z / 2.0 + 16.0) for z, _, c in found])
