@@ -75,11 +75,14 @@ def smear_boxes(regions: list[np.ndarray], polarity: str, spans=None,
         weights = smear_rows(regions, polarity)
     profiles = np.array([weights @ r.astype(np.float64) for r in regions])
     count, w = profiles.shape
-    profiles /= np.median(profiles, axis=1)[:, None]
+    levels = np.median(profiles, axis=1)
+    centres, sizes = np.full(count, np.nan), np.full(count, np.nan)
+    if not np.all(levels > 0):  # a dark frame: no boxes
+        return centres, sizes
+    profiles /= levels[:, None]
     sign = 1.0 if polarity == 'dark' else -1.0
     columns = np.arange(w)
     lengths = np.unique(np.geomspace(6, 0.8 * w, 40).astype(int))
-    centres, sizes = np.full(count, np.nan), np.full(count, np.nan)
     covered = np.zeros((count, w), dtype=bool)
     if spans is not None:
         for n, (first, last) in enumerate(spans):
@@ -401,7 +404,7 @@ def least_smeared(measure, frames, regions, x, polarity):
                 break
     if len(found) < 8:
         centres, sizes = smear_boxes(regions, polarity)
-        if not np.nanmedian(sizes) > LONG_BLUR * width:
+        if np.count_nonzero(np.isfinite(sizes)) < 8 or not np.nanmedian(sizes) > LONG_BLUR * width:
             return None, None
         found = [(z, n, c) for n, (c, z) in enumerate(zip(centres, sizes, strict=True))
                  if math.isfinite(c)]
