@@ -18,7 +18,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 from tracking_scenes import SceneSpec, plates, render  # noqa: E402
 
 from microball_ros.core.tracking import track  # noqa: E402
-from microball_ros.core.tracking.plate import GAIN_LASTING  # noqa: E402
+from microball_ros.core.tracking.gains import LASTING as GAIN_LASTING  # noqa: E402
 
 SCALE = 5e-6
 
@@ -56,3 +56,23 @@ def test_a_lasting_change_of_the_mark_gain_is_taken_up():
         back = 70 + GAIN_LASTING
         assert np.isfinite(error[:70]).all() and np.isfinite(error[back:]).all(), plate
         assert np.sqrt(np.mean(error[back:] ** 2)) < 0.15, plate
+
+
+def test_mark_gains_refuse_a_jump_keep_the_reference_and_take_up_a_lasting_change():
+    from microball_ros.core.tracking.gains import FLOOR, SPREADS, MarkGains
+
+    gains = MarkGains(20)
+    gains.start_log()
+    rng = np.random.default_rng(0)
+    for g in 1.0 + 0.004 * rng.standard_normal(40):
+        assert gains.judge(float(g)) is not None
+    gains.learn_spread()
+    assert gains.spread == pytest.approx(0.004, rel=0.3)  # the scatter of gain / median - 1
+    limit = max(SPREADS * gains.spread, FLOOR)
+    assert gains.judge(1.0 + 0.8 * limit) == pytest.approx(1.0, abs=0.01)
+    assert gains.judge(1.0 + 1.5 * limit) is None  # refused, and not kept:
+    assert gains.judge(1.0) == pytest.approx(1.0, abs=0.01)
+    for _ in range(GAIN_LASTING - 1):
+        assert gains.judge(1.3) is None
+    assert gains.judge(1.3) == pytest.approx(1.3)  # a lasting change is the new gain
+    assert gains.judge(1.3) == pytest.approx(1.3)

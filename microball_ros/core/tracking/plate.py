@@ -1,19 +1,19 @@
 """One mark on a plate whose texture moves with it: the learned plate, registered per frame.
 
-Owns PlateMarkTracker (same interface as CentroidMarkTracker); what priming measures to
-choose is core.tracking.priming. Priming decides per ROI whether the plate is textured: pixel
-noise is independent between the even and the odd rows while a texture on the plate is common
-to both, so the correlation of their profiles outside the mark (after a cubic detrend) is about
-0 on a plain plate and 0.5-1 on a textured one (``texture_score``; a static background the
-centroid tracker learned is divided out first). On a plain plate the tracker
-*is* the centroid tracker (core.tracking.centroid): every frame is measured by it, unchanged,
-unless the mark has narrow parts (a cross, a pair of bars: ``narrow_shape`` of its least
-smeared priming frames), for which the deficit centroid is far from efficient: then the plate
-is learned as below and kept only if, over the priming frames, it reports every frame the
-centroid does and its jitter about the motion (``motion_jitter``: the residual about a smooth
-periodic fit) is below ``PLAIN_MARGIN`` times the centroid's; its positions are offset by the
-mean difference of the two tracks there (the centroid is exact on average). A box-shaped mark
-never has a plate learned.
+Owns PlateMarkTracker (same interface as CentroidMarkTracker); what priming measures to choose
+is core.tracking.priming. Priming decides per ROI whether the plate is textured: pixel noise is
+independent between the even and the odd rows while a texture on the plate is common to both,
+so the correlation of their profiles outside the mark (after a cubic detrend) is about 0 on a
+plain plate and 0.5-1 on a textured one (``texture_score``; a static background the centroid
+tracker learned is divided out first). On a plain plate the tracker *is* the centroid tracker
+(core.tracking.centroid): every frame is measured by it, unchanged, unless the mark has narrow
+parts (a cross, a pair of bars: ``narrow_shape`` of its least smeared priming frames), for
+which the deficit centroid is far from efficient: then the plate is learned as below and kept
+only if, over the priming frames, it reports every frame the centroid does and its jitter about
+the motion (``motion_jitter``: the residual about a smooth periodic fit) is below
+``PLAIN_MARGIN`` times the centroid's; its positions are offset by the mean difference of the
+two tracks there (the centroid is exact on average). A box-shaped mark never has a plate
+learned.
 
 On a textured plate the texture moves with the mark, so near the mark the plate's relative
 deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
@@ -40,19 +40,22 @@ averaged over the exposure. The tracker
    profile over the whole learned plate placed at the predicted position, so the texture is
    not mistaken for light and the mark's contrast is relative to the plate next to it in
    the same frame (flicker does not look like a covered mark); then searches the mark by a
-   matched filter of ``D`` smeared by the predicted
-   motion, gated around the position predicted from the recent track (``MotionPredictor``,
-   core.tracking.predict) so texture dips never win, over the whole
-   ROI after a loss;
+   matched filter of ``D`` smeared by the predicted motion, gated around the position
+   predicted from the recent track (``MotionPredictor``, core.tracking.predict) so texture
+   dips never win, over the whole ROI after a loss;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
    common to data and model, is signal rather than error; a fit far worse than priming's is
    restarted from short kernels (their blur and curvature are hardly separable);
 4. checks the mark clear of the ROI edges, its contrast ``g`` against recent frames (a covered
-   mark loses contrast) and the fit's residual against the residuals while priming: a failed
+   mark loses contrast; a jump of it, something passing beside the mark, is refused:
+   core.tracking.gains) and the fit's residual against the residuals while priming: a failed
    check gives NaN with a quality below ``min_quality``; positions are never invented.
+
+Long smears (core.tracking.smear: a path over ``LONG_BLUR`` of the ROI) start step 1 from a
+periodic motion fitted to the smears, and search a bank of its kernels; the plate is kept only
+if its priming track passes ``smear_verdict``, else every frame is NaN.
 """
 
-from collections import deque
 import math
 import warnings
 
@@ -61,8 +64,10 @@ import numpy as np
 from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.gains import MarkGains
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, grid_window
+from microball_ros.core.tracking.plate_search import match_plate, plate_level
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
@@ -80,29 +85,30 @@ from microball_ros.core.tracking.profile import (
 )
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent
+from microball_ros.core.tracking.smear import (
+    PeriodicMotion,
+    least_smeared,
+    local_kernel,
+    path_range,
+    smear_start,
+    smear_verdict,
+)
 
 ROUNDS = 4
+SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
-# A plain plate: the learned plate is tried only for a mark with narrow parts (a cross, bars),
-# seen in the priming frames smeared least (priming.narrow_shape): its profile fills less than
-# NARROW_FILL of its extent (a box about 0.85, a blob 0.68, a cross 0.55-0.62, bars 0.45)
-# and the centroid's variance is over NARROW_GAIN times the efficient one's (a box 2.9, a blob
-# 1.5, a cross 3-4.5, bars 26); it is kept if its jitter about the motion over the priming
-# frames is below PLAIN_MARGIN times the centroid's and it reports every frame the centroid
-# does.
+# A plain plate: the plate is tried only for a mark with narrow parts (priming.narrow_shape):
+# a profile filling under NARROW_FILL of its extent (a box 0.85, a blob 0.68, a cross 0.55-0.62,
+# bars 0.45) and a centroid variance over NARROW_GAIN times the efficient one's (a box 2.9, a
+# blob 1.5, a cross 3-4.5, bars 26); kept if its jitter over priming is under PLAIN_MARGIN
+# times the centroid's and it reports every frame the centroid does.
 NARROW_FILL = 0.72
 NARROW_GAIN = 2.0
 PLAIN_MARGIN = 0.95
 PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
+SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
-# A frame whose mark gain (against the recent frames') is further from 1 than GAIN_SPREADS
-# times its scatter over the priming frames, and than GAIN_FLOOR, is not reported: something
-# over the plate beside the mark (a passing ball) moves the fit by pixels while its residual
-# stays small. Clear frames stay within 3-4 spreads (0.003-0.008 each) on our textures.
-GAIN_SPREADS = 6.0
-GAIN_FLOOR = 0.03
-GAIN_LASTING = 30  # so many frames in a row off the recent gains (1 s at 30 fps): a new gain
 
 
 class PlateMarkTracker:
@@ -133,12 +139,11 @@ class PlateMarkTracker:
         self._rms = 1.0
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
         self._predictor = MotionPredictor()
-        self._gains: deque[float] = deque(maxlen=int(self.config.area_history))
+        self._gains = MarkGains(int(self.config.area_history))  # and the jump guard
+        self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
+        self._refused = False  # a long smear whose plate could not be learned: all NaN
         self._offset = 0.0  # px added to the plate's positions (on a plain plate)
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
-        self._gain_spread = math.inf  # the scatter of the gain over priming (``_calibrate``)
-        self._gain_log: list[float] | None = None  # gain / recent gains - 1, while priming
-        self._gains_off: list[float] = []  # the gains of the frames in a row the guard refused
         self.shape: tuple[float, float] | None = None  # plain plate: mark_shape's fill, gain
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
@@ -170,8 +175,7 @@ class PlateMarkTracker:
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
         self._predictor.reset()
-        self._gains.clear()
-        self._gains_off = []
+        self._gains.reset()
         polarity = self._fallback.polarity
         self._fallback.reset()
         self._fallback.polarity = polarity
@@ -196,27 +200,24 @@ class PlateMarkTracker:
                             if 'static_background' in self._fallback.learned else None)
         regions = [self._region(frame) for frame in frames]
         x = self.roi[0]
-        sample, marks = [], []
-        for region, frame in zip(regions, frames, strict=True):
-            m = self._fallback.measure(frame)
-            if m.valid:
-                sample.append(region)
-                marks.append((m.position_px - x - m.extent_px / 2.0 - 16.0,
-                              m.position_px - x + m.extent_px / 2.0 + 16.0))
-                if len(sample) == 12:
-                    break
+        sample, marks = least_smeared(self._fallback.measure, frames, regions, x,
+                                      self.polarity)
         self.reset()
-        if len(sample) < 8:
+        if sample is None:
             return
         self.texture = texture_score(sample, marks)
         if self.texture < TEXTURE_SCORE:
             self._prime_plain(regions, frames)  # calibrates a plate it keeps
         else:
-            self._learn(regions)
-            if self.plate is not None:
+            start = smear_start(regions, self.polarity, self.exposure_fraction)
+            self._motion = None if start is None else start[4]  # a long smear (smear.py)
+            self._learn(regions, start)
+            if self._motion is not None:
+                self._check_smear(frames)
+            elif self.plate is not None:
                 self._relearn(regions, frames)
                 self._calibrate(frames)
-        self._gain_log = None
+        self._gains.stop_log()
         self.reset()
 
     def _calibrate(self, frames, tracked=None) -> None:
@@ -231,11 +232,9 @@ class PlateMarkTracker:
         ``MAX_SIGMA_SCALE``; a larger ratio is the motion fit's failure, not the tracker's).
         """
         self._sigma_scale = 1.0
-        self._gain_spread = math.inf
         positions, found = (self._track_priming(frames, self.measure) if tracked is None
                             else tracked)
-        if self._gain_log is not None and len(self._gain_log) >= 8:  # the plate's last pass
-            self._gain_spread = 1.4826 * float(np.median(np.abs(self._gain_log)))
+        self._gains.learn_spread()  # from the plate's last pass over the priming frames
         sigmas = np.array([m.sigma_px for m in found if m.valid])
         jitter = motion_jitter([positions])[0]
         if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
@@ -244,11 +243,22 @@ class PlateMarkTracker:
         if 1.0 < ratio <= MAX_SIGMA_SCALE:
             self._sigma_scale = ratio
 
+    def _check_smear(self, frames) -> None:
+        """Keep a long smear's plate if ``smear_verdict`` trusts it; else refuse every frame."""
+        tracked = self._track_priming(frames, self.measure) if self.plate is not None else None
+        centroid = self._track_priming(frames, self._fallback.measure)[0]
+        if tracked is None or self._motion is None or not smear_verdict(
+                tracked[0], centroid, self._motion):
+            self._forget()
+            self._refused = True
+            return
+        self._calibrate(frames, tracked)
+
     def _track_priming(self, frames, measure):
         """Return the positions (ROI columns, NaN: none) and measurements of ``measure``."""
         self.reset()
         x = self.roi[0]
-        self._gain_log = []
+        self._gains.start_log()
         found = [measure(frame) for frame in frames]
         self.reset()
         return np.array([m.position_px - x if m.valid else math.nan for m in found]), found
@@ -294,12 +304,13 @@ class PlateMarkTracker:
 
     def _forget(self) -> None:
         """Drop a learned plate: every frame is measured by the centroid tracker again."""
-        self.plate = self._full = None
+        self.plate = self._full = self._motion = None
         self.weights = self.static = self.flat = None
         self._half = self._outer = 8.0
         self._shift, self._rms, self._offset = 0.0, 1.0, 0.0
         self._sigma_scale = 1.0
-        self._gain_spread = math.inf
+        self._gains.forget_spread()
+        self._refused = False
         self.reset()
 
     def _relearn(self, regions, frames) -> None:
@@ -346,7 +357,9 @@ class PlateMarkTracker:
             return
         self.plate = None
         positions, extents = first_positions(regions, polarity, cfg)
-        if start is not None:
+        if start is not None and len(start) > 2:  # a long smear: the extents come with it
+            positions, extents = (np.array(v, dtype=float) for v in (start[0], start[2]))
+        elif start is not None:
             positions = np.array(start[0], dtype=float)
             typical = float(np.nanmedian(extents)) if np.any(np.isfinite(extents)) else 0.0
             extents = np.where(np.isfinite(extents), extents, typical)
@@ -381,7 +394,8 @@ class PlateMarkTracker:
                 if level is None:
                     return
                 profiles[n] /= level
-        self._half = 0.5 * float(np.nanpercentile(extents, 10))
+        self._half = 0.5 * float(np.nanpercentile(extents, 10) if start is None
+                                 or len(start) < 4 else start[3])
         f = self.exposure_fraction
         kernels = np.full((positions.size, 2), np.nan)
         if start is not None:
@@ -393,8 +407,7 @@ class PlateMarkTracker:
                               (after - 2 * middle + before) * f * f / 2)
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
-        rms = solver.learn(positions, kernels, reach + 8.0,
-                           ROUNDS)
+        rms = solver.learn(positions, kernels, reach + 8, SMEAR_ROUNDS if self._motion else ROUNDS)
         if solver.plate is None:
             return
         center = solver.plate.mark_center(reach)
@@ -402,7 +415,9 @@ class PlateMarkTracker:
             return
         longest = float(np.nanmax(solver.kernels[:, 0])) if np.any(
             np.isfinite(solver.kernels[:, 0])) else 0.0
-        local = solver.plate.local(center, reach + 8.0 + min(longest, cfg.max_blur_px) + 16.0)
+        if self._motion is None:
+            longest = min(longest, cfg.max_blur_px)
+        local = solver.plate.local(center, reach + 8.0 + longest + 16.0)
         self.plate = local
         self._full, self._shift = solver.plate, center
         c = local.center
@@ -422,27 +437,15 @@ class PlateMarkTracker:
         texture is known, so only the light is left), outside ``extent`` around the mark.
         """
         ratio = profile / self.static
-        plate = ratio
-        if self._full is not None and math.isfinite(center):
-            plate = ratio / self._plate_level(center, kernel)
+        sign = 1.0 if self.polarity == 'dark' else -1.0
+        plate, w = ratio, self.roi[2]
+        if self._full is not None and math.isfinite(center):  # the learned plate, smeared
+            plate = ratio / plate_level(self._full, center - self._shift, sign, kernel, w)
         level = light_level(plate, self.polarity, center, extent,
                             flank=LIGHT_FLANK if math.isfinite(center) else None)
         if level is None:
             return None
-        return (1.0 if self.polarity == 'dark' else -1.0) * (1.0 - ratio / level)
-
-    def _plate_level(self, center, kernel):
-        """Return the learned plate over the ROI (1 - sign D, smeared) with the mark at center."""
-        full = self._full
-        if full is None:
-            return None
-        sign = 1.0 if self.polarity == 'dark' else -1.0
-        s = center - self._shift
-        j0 = int(round(s)) - full.center
-        blur, curve = kernel if kernel is not None else (0.0, 0.0)
-        model = full.model(s - round(s), abs(blur), curve)
-        level = 1.0 - sign * model.take(np.arange(self.roi[2]) - j0, mode='wrap')
-        return np.clip(level, 0.05, None)
+        return sign * (1.0 - ratio / level)
 
     def _span(self, blur, kernel):
         """Return the width (px) the smeared mark can cover: the light is fitted outside it."""
@@ -458,6 +461,8 @@ class PlateMarkTracker:
         along the plate: a mark it finds partly hidden, or a plate position more than
         ``PLAIN_AGREE`` standard errors (and 0.1 px) from its own, is not reported.
         """
+        if self._refused:
+            return self._invalid('long smear on a textured plate not learned')
         if self.plate is None or self.weights is None:
             return self._fallback.measure(frame)
         if self.texture >= TEXTURE_SCORE:
@@ -493,7 +498,10 @@ class PlateMarkTracker:
         prediction = self._predictor.predict()
         f = self.exposure_fraction
         kernel = None
-        if prediction is not None and math.isfinite(prediction.before):
+        if prediction is not None and self._motion is not None:
+            kernel = local_kernel(prediction.previous, prediction.column, prediction.following,
+                                  self._motion.omega, f)
+        elif prediction is not None and math.isfinite(prediction.before):
             kernel = (abs(prediction.following - prediction.previous) / 2.0 * f,
                       (prediction.following - 2 * prediction.column + prediction.previous)
                       * f * f / 2.0)
@@ -534,25 +542,17 @@ class PlateMarkTracker:
         position = delta + j0 + plate.center
         extent = reach + 0.5 * blur + 0.25 * abs(curve)
         peak = gain * float(plate.values.max())
-        if abs(position - start) > 4.0 or not math.isfinite(position):
+        first, last, moved = position - extent, position + extent, 4.0
+        if self._motion is not None:  # a long smear: the search finds its box, the fit the mark
+            moved, (first, last) = 4.0 + SMEAR_MOVE * blur, path_range(blur, curve, reach)
+            first, last = first + position, last + position
+        if abs(position - start) > moved or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
-        if position - extent < 1 or position + extent > w - 2:
+        if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
-        reference = float(np.median(self._gains)) if len(self._gains) >= 3 else 1.0
-        if len(self._gains) >= 3:
-            if self._gain_log is not None:
-                self._gain_log.append(gain / reference - 1.0)
-            if abs(gain / reference - 1.0) > max(GAIN_SPREADS * self._gain_spread, GAIN_FLOOR):
-                # Not kept among the recent gains: the frames after it are judged as before,
-                # unless it lasts (GAIN_LASTING frames in a row): then it is the new gain.
-                self._gains_off.append(gain)
-                if len(self._gains_off) < GAIN_LASTING:
-                    return self._invalid('mark area changed', contrast=peak)
-                self._gains.clear()
-                self._gains.extend(self._gains_off[-3:])
-                reference = float(np.median(self._gains))
-            self._gains_off = []
-        self._gains.append(gain)
+        reference = self._gains.judge(gain)  # core.tracking.gains: None if it jumped
+        if reference is None:
+            return self._invalid('mark area changed', contrast=peak)
         q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / cfg.area_tolerance) ** 2)
         excess = max(rms / self._rms - cfg.match_tolerance, 0.0)
         q_match = math.exp(-0.5 * (excess / 0.5) ** 2)
@@ -574,11 +574,8 @@ class PlateMarkTracker:
         Gated around the prediction (one kernel, the predicted one) when there is one, else
         over the whole ROI with a bank of blurs. Score: correlation over the model's norm.
         """
-        plate = self.plate
-        if plate is None:
+        if self.plate is None:
             return None
-        c = plate.center
-        reach = self._half + self.config.pad_px
         if prediction is not None:
             gate = 6.0 * prediction.spread + 3.0
             lo = int(math.floor(prediction.column - gate))
@@ -586,33 +583,14 @@ class PlateMarkTracker:
             kernels = [kernel if kernel is not None else (0.0, 0.0)]
         else:
             lo, hi = 0, d.size
-            kernels = [(b, 0.0) for b in SEARCH_BLURS]
+            kernels = ([(b, 0.0) for b in SEARCH_BLURS] if self._motion is None
+                       else self._motion.bank())
             if kernel is not None:
                 kernels.append(kernel)
         lo, hi = max(lo, 0), min(hi, d.size)
         if hi <= lo:
             return None
-        best = None
-        for blur, curve in kernels:
-            core = min(int(math.ceil(reach + 0.5 * blur + 0.25 * abs(curve))) + 2, c - 1)
-            template = plate.model(0.0, blur, curve)[c - core:c + core + 1]
-            norm = math.sqrt(float(template @ template))
-            if norm <= 0:
-                continue
-            padded = np.zeros(hi - lo + 2 * core)
-            a, b = lo - core, hi + core
-            padded[max(a, 0) - a:min(b, d.size) - a] = d[max(a, 0):min(b, d.size)]
-            score = np.correlate(padded, template, mode='valid') / norm
-            k = int(np.argmax(score))
-            if best is None or score[k] > best[0]:
-                offset = 0.0
-                if 0 < k < score.size - 1:
-                    left, mid, right = score[k - 1], score[k], score[k + 1]
-                    den = left - 2 * mid + right
-                    if den < 0:
-                        offset = float(np.clip(0.5 * (left - right) / den, -0.5, 0.5))
-                best = (float(score[k]), lo + k + offset, blur, curve)
-        return None if best is None else best[1:]
+        return match_plate(self.plate, d, lo, hi, kernels, self._half + self.config.pad_px)
 
     def _invalid(self, reason, quality=0.0, contrast=math.nan):
         self._predictor.add(math.nan)
