@@ -23,26 +23,26 @@ averaged over the exposure. The tracker
 
 1. learns from the priming frames the row weights (the mark's depth per row) and, jointly
    (``PlateSolver``, alternating least squares), the whole plate's deficit ``D`` seen through
-   the ROI, the static field (illumination and dust fixed in the image) with each frame's
-   light (flicker and a drifting gradient: a quadratic over the ROI), and each frame's
-   position and kernel: first positions from the dip's centroid (the parts of a mark, such
-   as two bars, joined; a gain per frame divided out) and kernels from neighbouring frames,
-   then rounds of ``D`` (preconditioned conjugate gradients, exact for partial coverage),
-   static field and lights (closed form), positions and kernels (fits).
-   ``D``'s origin is then moved to the mark's centre, the mid-point of its two outer edges
-   (half-depth crossings against the levels on either side of each edge), which a
-   multiplicative texture hardly moves (a centroid is pulled by it). All of it is learned
-   twice: the second time from the positions and kernels the first plate measures (search and
-   full fit), on the ROI divided by a row flat field (``row_flat_field``: a pattern fixed in
-   the image that differs between rows) when there is one; kept if it fits better;
-2. per frame divides the row-weighted profile by the static field and by the frame's light:
-   a straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
-   profile over the whole learned plate placed at the predicted position, so the texture is
-   not mistaken for light and the mark's contrast is relative to the plate next to it in
-   the same frame (flicker does not look like a covered mark); then searches the mark by a
-   matched filter of ``D`` smeared by the predicted motion, gated around the position
-   predicted from the recent track (``MotionPredictor``, core.tracking.predict) so texture
-   dips never win, over the whole ROI after a loss;
+   the ROI, the static field (illumination and dust fixed in the image) with each frame's light
+   (flicker and a drifting gradient: a quadratic over the ROI), and each frame's position and
+   kernel: first positions from the dip's centroid (the parts of a mark, such as two bars,
+   joined; a gain per frame divided out) and kernels from neighbouring frames, then rounds of
+   ``D`` (preconditioned conjugate gradients, exact for partial coverage), static field and
+   lights (closed form), positions and kernels (fits). ``D``'s origin is then moved to the
+   mark's centre, the mid-point of its two outer edges (half-depth crossings against the levels
+   on either side of each edge), which a multiplicative texture hardly moves (a centroid is
+   pulled by it). All of it is learned twice: the second time from the positions and kernels
+   the first plate measures (search and full fit), on the ROI divided by a row flat field
+   (``row_flat_field``: a pattern fixed in the image that differs between rows) when there is
+   one; kept if it fits better;
+2. per frame divides the row-weighted profile by the static field and by the frame's light: a
+   straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
+   profile over the whole learned plate placed at the predicted position, so the texture is not
+   mistaken for light and the mark's contrast is relative to the plate next to it in the same
+   frame (flicker does not look like a covered mark); then searches the mark by a matched
+   filter of ``D`` smeared by the predicted motion, gated around the position predicted from
+   the recent track (``MotionPredictor``, core.tracking.predict) so texture dips never win,
+   over the whole ROI after a loss (a first fit poorer than priming's is refused then);
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
    common to data and model, is signal rather than error; a fit far worse than priming's is
    restarted from short kernels (their blur and curvature are hardly separable);
@@ -109,6 +109,7 @@ PLAIN_MARGIN = 0.95
 PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
 SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
+REACQUIRE_MATCH = 1.4  # after a loss, a poorer fit may be false (a shadow leaving: 2.7 px off)
 
 
 class PlateMarkTracker:
@@ -166,10 +167,9 @@ class PlateMarkTracker:
         """Return what was learned: the centroid tracker's, and the plate near the mark if any."""
         learned = dict(self._fallback.learned)
         if self.plate is not None:
-            learned.update({'polarity': self.polarity, 'half_width': self._half,
-                            'template': self.plate.values.copy(), 'center': self.plate.center,
-                            'texture': self.texture, 'offset': self._offset,
-                            'sigma_scale': self._sigma_scale})
+            learned.update(polarity=self.polarity, half_width=self._half, texture=self.texture,
+                           template=self.plate.values.copy(), center=self.plate.center,
+                           offset=self._offset, sigma_scale=self._sigma_scale)
         return learned
 
     def reset(self) -> None:
@@ -495,7 +495,7 @@ class PlateMarkTracker:
                       else default_saturation(region.dtype))
         if saturation is not None and profile.max() >= saturation:
             return self._invalid('saturated')
-        prediction = self._predictor.predict()
+        prediction, lost = self._predictor.predict(), self._predictor.lost()
         f = self.exposure_fraction
         kernel = None
         if prediction is not None and self._motion is not None:
@@ -547,6 +547,8 @@ class PlateMarkTracker:
             moved, (first, last) = 4.0 + SMEAR_MOVE * blur, path_range(blur, curve, reach)
             first, last = first + position, last + position
         if abs(position - start) > moved or not math.isfinite(position):
+            return self._invalid('no match', contrast=peak)
+        if lost and rms > REACQUIRE_MATCH * self._rms:  # after a loss: maybe a false match
             return self._invalid('no match', contrast=peak)
         if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)

@@ -42,6 +42,10 @@ class MotionPredictor:
         """Append this frame's column (NaN when the mark was lost)."""
         self._track.append(float(column))
 
+    def lost(self) -> bool:
+        """Return True if the mark was lost in the last frame (after at least one frame)."""
+        return bool(self._track) and not math.isfinite(self._track[-1])
+
     def _recurrence(self, track):
         p = self.order
         if track.size <= p:
