@@ -40,6 +40,7 @@ from microball_ros.core.tracking.profile import (
     polarity_of,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.search import peak_offset
 from microball_ros.core.tracking.template import MarkTemplate
 
 
@@ -239,13 +240,7 @@ class LearnedMarkTracker:
                 continue
             k = lo + int(np.argmax(score[lo:hi]))
             if best is None or score[k] > best[0]:
-                offset = 0.0
-                if 0 < k < r.size - 1:
-                    left, mid, right = score[k - 1], score[k], score[k + 1]
-                    denominator = left - 2 * mid + right
-                    if denominator < 0:
-                        offset = float(np.clip(0.5 * (left - right) / denominator, -0.5, 0.5))
-                best = (float(score[k]), k + offset, float(length))
+                best = (float(score[k]), k + peak_offset(score, k), float(length))
         return None if best is None else best[1:]
 
     # -- a frame with a learned mark -------------------------------------------------------

@@ -5,6 +5,7 @@ import math
 import numpy as np
 
 from microball_ros.core.tracking.plate_model import PlateModel
+from microball_ros.core.tracking.search import peak_offset
 
 
 def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, reach: float):
@@ -29,13 +30,7 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
         score = np.correlate(padded, template, mode='valid') / norm
         k = int(np.argmax(score))
         if best is None or score[k] > best[0]:
-            offset = 0.0
-            if 0 < k < score.size - 1:
-                left, mid, right = score[k - 1], score[k], score[k + 1]
-                den = left - 2 * mid + right
-                if den < 0:
-                    offset = float(np.clip(0.5 * (left - right) / den, -0.5, 0.5))
-            best = (float(score[k]), lo + k + offset, blur, curve)
+            best = (float(score[k]), lo + k + peak_offset(score, k), blur, curve)
     return None if best is None else best[1:]
 
 

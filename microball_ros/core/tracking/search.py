@@ -15,6 +15,20 @@ import numpy as np
 from microball_ros.core.tracking.profile import smooth
 
 
+def peak_offset(score: np.ndarray, k: int) -> float:
+    """Return the sub-sample offset (-0.5..0.5) of the maximum at ``k``: a parabola's vertex.
+
+    Through the scores at k - 1, k, k + 1; 0 at either end or where they do not curve down.
+    """
+    if not 0 < k < score.size - 1:
+        return 0.0
+    left, mid, right = float(score[k - 1]), float(score[k]), float(score[k + 1])
+    curvature = left - 2.0 * mid + right
+    if not curvature < 0:
+        return 0.0
+    return float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5))
+
+
 class Dip(NamedTuple):
     """The located mark: peak column, peak smoothed deficit, first and last column above."""
 
