@@ -22,7 +22,7 @@ from microball_ros.io import conversions
 from microball_ros.io.bags.reader import open_bag
 from microball_ros.io.bags.schema import msg_file
 from microball_ros.nodes.common import DATA_QOS
-from microball_ros.testing import Harness
+from microball_ros.testing import Harness, killable_env
 
 POSITIONS = '/tracking/positions'
 POSITIONS_TYPE = 'microball_msgs/msg/TrackedPositions'
@@ -205,15 +205,18 @@ rclpy.spin(node)
 """
 
 
-def test_lockstep_waits_for_a_subscriber_that_stopped(ros_context, bag_with_an_unknown_type):
+def test_lockstep_waits_for_a_subscriber_that_stopped(ros_context, bag_with_an_unknown_type,
+                                                      tmp_path):
     # A subscriber process that stops acknowledging (SIGSTOP) holds lock-step replay at the
     # first message: no message is published that it has not taken. Without lock-step the
     # player runs on.
     player = Player(open_bag(bag_with_an_unknown_type), topics=[POSITIONS],
                     context=ros_context)
     harness = Harness(ros_context, player)
+    # Killed below: without Fast DDS shared memory, whose ports a killed process leaves
+    # mapped in this one (destroy_node once hung on them; killable_env).
     subscriber = subprocess.Popen([sys.executable, '-c', SUBSCRIBER], stdout=subprocess.PIPE,
-                                  text=True)
+                                  text=True, env=killable_env(tmp_path))
     try:
         player.wait_for_subscribers(harness.executor, [POSITIONS])
         assert subscriber.stdout.readline().strip() == 'matched'
