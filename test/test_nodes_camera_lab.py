@@ -53,6 +53,7 @@ def test_best_effort_camera_bad_frames_dropped_and_counted_good_ones_tracked(
     probe.create_subscription(DiagnosticArray, '/diagnostics', diagnostics.append, 10)
     camera = probe.create_publisher(Image, 'camera/image_raw', qos_profile_sensor_data)
     ros_harness.wait_for_subscribers(camera)
+    ros_harness.wait_for_output_subscribers('camera_tracker', 'tracking/positions')
 
     def send_good(k, frame):
         count = len(positions)

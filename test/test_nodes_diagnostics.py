@@ -37,3 +37,23 @@ def test_drops_are_counted_per_kind_logged_once_and_published(ros_context):
         assert seen[-1].status[0].level == DiagnosticStatus.OK  # nothing new: back to OK
     finally:
         harness.close()
+
+
+def test_an_output_reports_the_subscriptions_its_writer_matched(ros_context):
+    from std_msgs.msg import String
+
+    node = rclpy.create_node('talker', namespace='rig2', context=ros_context)
+    output = node.create_publisher(String, 'chatter', 10)
+    diagnostics = NodeDiagnostics(node, period=0.1)
+    assert diagnostics.watch_output(output) is output
+    harness = Harness(ros_context, node)
+    statuses = harness.diagnostics()
+    try:
+        harness.spin_until(lambda: 'rig2/talker' in statuses, 10.0, 'a status')
+        assert statuses['rig2/talker']['subscribers: /rig2/chatter'] == '0'
+        harness.probe.create_subscription(String, '/rig2/chatter', lambda msg: None, 10)
+        harness.probe.create_subscription(String, '/rig2/chatter', lambda msg: None, 10)
+        harness.wait_for_output_subscribers('rig2/talker', '/rig2/chatter', 2, timeout=10.0)
+        assert statuses['rig2/talker']['subscribers: /rig2/chatter'] == '2'
+    finally:
+        harness.close()

@@ -11,7 +11,6 @@ import signal
 import subprocess
 import sys
 
-from diagnostic_msgs.msg import DiagnosticArray
 from microball_msgs.msg import DerivativeEstimate, FrictionModel, TrackedPositions
 import numpy as np
 import pytest
@@ -64,6 +63,7 @@ def test_killed_estimator_restarts_and_the_pipeline_resumes(ros_context, tmp_pat
         positions = probe.create_publisher(TrackedPositions, 'tracking/positions', DATA_QOS)
         # Started before anything publishes positions, the estimator waits quietly.
         harness.wait_for_subscribers(positions)
+        harness.wait_for_output_subscribers('three_stage_estimator', 'estimation/derivatives', 2)
         assert estimator.poll() is None and windows == []
         assert _shared_memory_ports(estimator.pid) == set()  # it leaves none behind
 
@@ -85,6 +85,8 @@ def test_killed_estimator_restarts_and_the_pipeline_resumes(ros_context, tmp_pat
             lambda: _subscription_ids(probe, 'tracking/positions') - old_subscriptions,
             timeout=30, message='the restarted estimator')
         harness.wait_for_subscribers(positions)
+        harness.diagnostics().pop('three_stage_estimator', None)  # the killed one's status
+        harness.wait_for_output_subscribers('three_stage_estimator', 'estimation/derivatives', 2)
         assert _deleted_mappings(os.getpid()) == set()  # no port of this process deleted
         publish(range(600, 1200))  # 20 s more, after a gap of 5 s
         harness.spin_until(lambda: len(windows) >= before + 8, timeout=60,
@@ -122,17 +124,6 @@ def _stop(*processes):
     return outputs
 
 
-def _diagnostics(harness):
-    """Collect the newest status of each node on /diagnostics: name -> {key: value}."""
-    latest = {}
-
-    def on_array(msg):
-        for status in msg.status:
-            latest[status.name] = {kv.key: kv.value for kv in status.values}
-    harness.probe.create_subscription(DiagnosticArray, '/diagnostics', on_array, 10)
-    return latest
-
-
 def _clean_windows(record, frames):
     """Return the window start stamps a clean estimator makes of these frames (defaults)."""
     windower = PositionWindower(WindowSettings())  # the node defaults
@@ -155,11 +146,13 @@ def test_bad_positions_are_dropped_counted_and_the_good_ones_analysed(ros_contex
         probe.create_subscription(DerivativeEstimate, 'estimation/derivatives', windows.append,
                                   DATA_QOS)
         probe.create_subscription(FrictionModel, 'friction/model', models.append, DATA_QOS)
-        status = _diagnostics(harness)
+        status = harness.diagnostics()
         positions = probe.create_publisher(TrackedPositions, 'tracking/positions', DATA_QOS)
         harness.wait_for_subscribers(positions)
-        harness.spin_until(lambda: probe.count_subscribers('estimation/derivatives') >= 2,
-                           30, 'the identifier')
+        # Both writers' sides, or the first outputs may go before they match (this probe and
+        # the identifier on the estimates, this probe on the models).
+        harness.wait_for_output_subscribers('three_stage_estimator', 'estimation/derivatives', 2)
+        harness.wait_for_output_subscribers('friction_identifier', 'friction/model')
 
         def good(k):
             return conversions.tracked_positions(record.time[k], k, record.slider_position[k],
@@ -208,6 +201,7 @@ def test_bad_positions_are_dropped_counted_and_the_good_ones_analysed(ros_contex
         assert status['friction_identifier']['dropped'] == '0'
     finally:
         outputs = _stop(estimator, identifier)
+        print(*outputs, sep='\n')  # shown when the test fails
         harness.close()
     # Each kind is logged once, however often it happens.
     assert outputs[0].count('dropped foreign publisher') == 1, outputs[0]
@@ -240,10 +234,11 @@ def test_bad_estimates_are_dropped_counted_and_the_fit_uses_the_good_ones(ros_co
         probe = harness.probe
         models = []
         probe.create_subscription(FrictionModel, 'friction/model', models.append, DATA_QOS)
-        status = _diagnostics(harness)
+        status = harness.diagnostics()
         estimates = probe.create_publisher(DerivativeEstimate, 'estimation/derivatives',
                                            DATA_QOS)
         harness.wait_for_subscribers(estimates)
+        harness.wait_for_output_subscribers('friction_identifier', 'friction/model')
         estimates.publish(good[0])
         estimates.publish(good[1])
         nan = copy.deepcopy(good[2])
@@ -268,5 +263,5 @@ def test_bad_estimates_are_dropped_counted_and_the_fit_uses_the_good_ones(ros_co
         assert model.sample_count < v.size  # overlapping windows: each sample once
         assert model.a * model.alpha / 3 == pytest.approx(1.2 * 110 / 3, rel=0.05)
     finally:
-        _stop(identifier)
+        print(_stop(identifier)[0])  # shown when the test fails
         harness.close()

@@ -201,8 +201,8 @@ class CameraTracker(Node):
         self._held = []
         self._primed = values['prime_frames'] == 0
         self.diagnostics = TrackerDiagnostics(self)
-        self._publisher = create_publisher(self, TrackedPositions, 'tracking/positions',
-                                           DATA_QOS)
+        self._publisher = self.diagnostics.watch_output(create_publisher(
+            self, TrackedPositions, 'tracking/positions', DATA_QOS))
         self._debug = self.create_publisher(Image, 'tracking/debug_image', 10)
         if not self._primed:
             self.diagnostics.priming = f'priming: 0/{values["prime_frames"]} frames'

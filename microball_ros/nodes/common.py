@@ -177,10 +177,15 @@ class NodeDiagnostics:
     error; level WARN while drops or errors are new in the period, else OK. rqt_robot_monitor
     and Foxglove's diagnostics panel show it. Wall-clock rate only: nothing downstream of a
     node's data depends on it (determinism: docs/design.md section 4).
+
+    ``watch_output(publisher)`` adds ``subscribers: <topic>``, the subscriptions that output's
+    writer has matched (a subscriber the writer has not matched yet gets nothing it publishes):
+    how a lab sees that nothing listens, and how a test knows a node-to-node link is up.
     """
 
     def __init__(self, node, period=1.0, hardware_id=''):
         self._node = node
+        self._outputs = []
         self._name = f'{node.get_namespace().rstrip("/")}/{node.get_name()}'.lstrip('/')
         self._hardware_id = hardware_id
         self._publisher = create_publisher(node, DiagnosticArray, '/diagnostics',
@@ -206,6 +211,11 @@ class NodeDiagnostics:
                 '/diagnostics for the count)')
         self.drops[kind] += 1
 
+    def watch_output(self, publisher):
+        """Report the subscriptions ``publisher`` has matched in each status; return it."""
+        self._outputs.append(publisher)
+        return publisher
+
     def count(self, name, n=1):
         """Count another event (for example a lost mark)."""
         self.counts[name] += n
@@ -229,6 +239,8 @@ class NodeDiagnostics:
                   'dropped': str(sum(self.drops.values())), 'last error': self.last_error}
         values.update({f'dropped: {kind}': str(n) for kind, n in sorted(self.drops.items())})
         values.update({name: str(n) for name, n in sorted(self.counts.items())})
+        values.update({f'subscribers: {p.topic_name}': str(p.get_subscription_count())
+                       for p in self._outputs})
         level = DiagnosticStatus.WARN if new_problems else DiagnosticStatus.OK
         message = (f'{new_problems} dropped or failed in the last period' if new_problems
                    else 'ok')

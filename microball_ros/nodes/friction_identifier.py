@@ -85,6 +85,7 @@ class FrictionIdentifier(Node):
         self._publisher = create_publisher(self, FrictionModel, 'friction/model', DATA_QOS)
         self._worker = OrderedWorker('identifier', self._on_job_error)
         self.diagnostics = NodeDiagnostics(self)
+        self.diagnostics.watch_output(self._publisher)
         self.guard = InputGuard(self, self.diagnostics, 'estimation/derivatives',
                                 expected=self._values['expected_publishers'],
                                 check=estimate_problem)

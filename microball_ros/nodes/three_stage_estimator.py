@@ -92,6 +92,7 @@ class ThreeStageEstimator(Node):
             self, DerivativeEstimate, 'estimation/derivatives', DATA_QOS)
         self._worker = OrderedWorker('estimator', self._on_job_error)
         self.diagnostics = NodeDiagnostics(self)
+        self.diagnostics.watch_output(self._publisher)
         self.guard = InputGuard(self, self.diagnostics, 'tracking/positions',
                                 expected=self._values['expected_publishers'],
                                 check=position_problem, frame_index=True,

@@ -24,6 +24,7 @@ class Harness:
         self.executor = SingleThreadedExecutor(context=context)
         self.nodes = []
         self.processes = []
+        self._statuses = None
         self.executor.add_node(self.probe)
         for node in nodes:
             self.add(node)
@@ -72,6 +73,37 @@ class Harness:
         """Spin until subscription has at least count matched publishers."""
         self.spin_until(lambda: subscription.get_publisher_count() >= count, timeout,
                         f'{count} publisher(s) on {subscription.topic_name}')
+
+    def diagnostics(self):
+        """Return {status name: {key: value}}, each node's newest status on /diagnostics.
+
+        The first call subscribes the probe; the dictionary it returns fills as the harness
+        spins.
+        """
+        if self._statuses is None:
+            from diagnostic_msgs.msg import DiagnosticArray
+
+            self._statuses = {}
+
+            def on_array(msg):
+                for status in msg.status:
+                    self._statuses[status.name] = {kv.key: kv.value for kv in status.values}
+            self.probe.create_subscription(DiagnosticArray, '/diagnostics', on_array, 10)
+        return self._statuses
+
+    def wait_for_output_subscribers(self, node, topic, count=1, timeout=30.0):
+        """Spin until node's publisher on topic has matched count subscriptions.
+
+        The node reports it on /diagnostics (``subscribers: /topic``, NodeDiagnostics
+        .watch_output). Unlike the graph, or this probe's own matches, that is the writer's side:
+        what the node publishes after it reaches count is delivered to those subscriptions,
+        even to another node's. ``node`` is the status name (``ns/name`` without a leading
+        slash); ``topic`` is resolved as the node resolved it (a leading slash added).
+        """
+        statuses = self.diagnostics()
+        key = f'subscribers: /{topic.lstrip("/")}'
+        self.spin_until(lambda: int(statuses.get(node, {}).get(key, 0)) >= count, timeout,
+                        f'{count} subscriber(s) matched by {node} on {topic}')
 
     def wait_for_node(self, name, namespace='/', timeout=30.0):
         """Spin until a node of that name (and namespace) is in the ROS graph."""
