@@ -389,6 +389,26 @@ def test_validation_reproduces_the_papers_simulated_amplitude_and_phase():
     assert result.simulated_slider_position.shape == t.shape
 
 
+def test_validation_on_epoch_stamps_equals_validation_on_stamps_from_zero():
+    # Stamps since 1970 (1.7e9 s): w t rounded to 4e-6 rad per sample once moved amplitudes
+    # and phases by 1e-7 and made them depend on the frequency's last bit.
+    epoch_stamps = 1.7e9 + np.arange(0, 4, 1 / 30)  # quantised to 2.4e-7 s
+    t = epoch_stamps - 1.7e9  # the same instants, exactly
+    stator = X_STATOR * np.sin(W * t)
+    slider = 1.26e-3 * np.sin(W * t - 0.46) + 3e-6 * t
+    near = validate(Langevin(A, ALPHA), t, stator, slider, FREQUENCY)
+    for frequency in (FREQUENCY, np.nextafter(FREQUENCY, 4.0)):
+        epoch = validate(Langevin(A, ALPHA), epoch_stamps, stator, slider, frequency)
+        for name in ('stator_amplitude', 'slider_amplitude_simulated',
+                     'slider_amplitude_measured'):
+            assert getattr(epoch, name) == pytest.approx(getattr(near, name), rel=1e-11), name
+        for name in ('phase_simulated', 'phase_measured'):
+            assert getattr(epoch, name) == pytest.approx(getattr(near, name), abs=1e-10), name
+    amplitude, phase = fit_sinusoid(epoch_stamps, slider, FREQUENCY, origin=1.7e9)
+    assert amplitude == pytest.approx(1.26e-3, rel=1e-9)
+    assert phase == pytest.approx(-0.46, abs=1e-9)
+
+
 def test_validation_of_the_first_periods_only_agrees_with_the_whole_record():
     t = np.arange(0, 20, 1 / 30)
     stator = X_STATOR * np.sin(W * t)

@@ -203,3 +203,18 @@ def test_a_fit_biased_by_the_velocity_noise_is_warned():
     lo, hi = result.fit.ci95['A']
     assert not lo <= 1.2 <= hi  # the bias the warning is for
     assert 'noise-bias' in {code for code, _ in result.warnings}
+
+
+def test_the_frame_period_of_epoch_stamps_does_not_depend_on_their_offset():
+    # The least-squares line through the stamps is fitted to the time since the first one:
+    # through 1.7e9 s stamps its slope was off by 1e-7 of dt (and CPU-dependent).
+    from microball_ros.core.timebase import regularise
+
+    frames = np.arange(61)
+    stamps_ns = 1_700_000_000_708_333_333 + np.round(frames * 1e9 / 30).astype(np.int64)
+    epoch_stamps = stamps_ns * 1e-9  # 1.7e9 s as doubles: quantised to 2.4e-7 s
+    x = 1e-3 * np.sin(2 * np.pi * 2.95 * frames / 30)
+    epoch = regularise(epoch_stamps, x, 0.5 * x)
+    near = regularise(epoch_stamps - epoch_stamps[0], x, 0.5 * x)  # the same stamps, exactly
+    assert epoch.dt == pytest.approx(near.dt, rel=1e-13)
+    assert near.dt == pytest.approx(1 / 30, rel=1e-7)  # the stamps' quantisation

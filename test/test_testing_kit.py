@@ -55,11 +55,13 @@ def test_tracker_in_process_reproduces_its_sample(ros_context, tmp_path):
     result = replay(sample_bag('camera_tracker'), CameraTracker, context=ros_context)
     _expect_reproduced(result)
     assert result.published == 12 and result.process is None
-    # The bag it writes is a sample in turn, with the parameters the node ran with.
+    # The bag it writes is a sample in turn, with the parameters the node ran with and the
+    # bytes the node published (the recorded ones only on the recording platform).
     again = open_bag(result.write_bag(tmp_path / 'again'))
     assert recorded_parameters(again, 'camera_tracker') == result.parameters
     assert [m.data for m in again.messages(['/tracking/positions'])] == \
-        [m.data for m in result.bag.messages(['/tracking/positions'])]
+        [m.data for m in result.received.messages(['/tracking/positions'])]
+    assert again.platform['key'] == fingerprint.fingerprint()['key']
 
 
 def test_estimator_as_a_process_reproduces_its_sample(node_replay):

@@ -21,6 +21,7 @@ import sys
 import tempfile
 import time
 
+from diagnostic_msgs.msg import DiagnosticArray
 from microball_msgs.msg import BenchState, DerivativeEstimate, FrictionModel, TrackedPositions
 import numpy as np
 import rclpy
@@ -147,6 +148,12 @@ _READY = {'camera/image_raw': 1, 'tracking/positions': 2, 'estimation/derivative
 # waits for the recorder on its own topics (wait_for_subscribers = 2).
 _READY_RECORDING = {'camera/image_raw': 1, 'tracking/positions': 3,
                     'estimation/derivatives': 3, 'friction/model': 2, 'servo/command': 1}
+# The node that writes each topic and reports, on /diagnostics, how many subscriptions its
+# writer has matched: the graph shows a subscription before the writer has matched it, and
+# what the writer publishes before that is lost (volatile QoS).
+_WRITERS = {'tracking/positions': 'camera_tracker',
+            'estimation/derivatives': 'three_stage_estimator',
+            'friction/model': 'friction_identifier'}
 
 
 class NodeProcesses:
@@ -222,6 +229,9 @@ class _Monitor:
         self.models = []
         self.last_change = time.monotonic()
         self.foreign = ForeignPublisherCheck(RUN_PUBLISHERS)
+        self.statuses = {}  # node name -> its newest /diagnostics values
+        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                      10)
         for message_type, topic, callback in (
                 (BenchState, 'bench/ground_truth', self._on_frame),
                 (TrackedPositions, 'tracking/positions', self._on_tracked),
@@ -231,6 +241,15 @@ class _Monitor:
 
     def _touch(self):
         self.last_change = time.monotonic()
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            self.statuses[status.name] = {kv.key: kv.value for kv in status.values}
+
+    def writers_matched(self, ready):
+        """Return True once each node's writer has matched the subscriptions ready counts."""
+        return all(int(self.statuses.get(node, {}).get(f'subscribers: /{topic}', 0))
+                   >= ready.get(topic, 1) for topic, node in _WRITERS.items())
 
     def _on_frame(self, msg):
         self.frames += 1
@@ -349,13 +368,15 @@ def run_experiment(scenario_name, duration, speed, progress=print, quiet_period=
                 if now > wall_limit:
                     raise NodeCrashed(f'timed out waiting for {what}; node logs in {log_dir}')
 
-        # Downstream first; the bench starts once every subscription is in place, and holds
-        # its first frame until its own subscribers are matched, so no frame is lost.
+        # Downstream first; the bench starts once every subscription is in place and every
+        # node's writer has matched it, and holds its first frame until its own subscribers
+        # are matched, so no frame is lost.
         for name in NODES + (('recorder',) if output else ()):
             if name != 'bench_simulator':
                 processes.start(name)
         spin_until(lambda: all(node.count_subscribers(topic) >= count
-                               for topic, count in ready.items()), 'the nodes to connect')
+                               for topic, count in ready.items())
+                   and monitor.writers_matched(ready), 'the nodes to connect')
         processes.start('bench_simulator')
         progress('nodes connected; the bench is running')
         next_report = time.monotonic() + 2.0

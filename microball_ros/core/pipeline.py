@@ -264,7 +264,8 @@ def _frequency(grid, runs, source):
         frequency = fundamental_frequency(stator, grid.dt)
     except InputError:
         raise InputError(f'{source}: no oscillation found in the stator position') from None
-    amplitude, _ = friction.fit_sinusoid(grid.time[longest[0]:longest[1]], stator, frequency)
+    amplitude, _ = friction.fit_sinusoid(grid.time[longest[0]:longest[1]], stator, frequency,
+                                         grid.time[longest[0]])
     if not amplitude / math.sqrt(2) > 0.5 * np.std(stator):
         raise InputError(f'{source}: no oscillation found in the stator position')
     return frequency

@@ -114,10 +114,12 @@ def regularise(time, stator, slider, valid=None, fill=2) -> Grid:
     dt = float(np.median(positive))
     # Slots step by step (each step is a few frames at most, so a rough dt places them), then
     # dt and t0 by a least-squares line through the slots (stamps may be jittered), twice.
+    # The line is fitted to the time since the first stamp: epoch stamps (1.7e9 s) would make
+    # its slope depend on the CPU's rounding (1e-7 of dt between two BLAS kernels).
     slot = np.concatenate(([0.0], np.cumsum(np.round(steps / dt))))
     for _ in range(2):
         if slot[-1] > 0:
-            dt = float(np.polyfit(slot, t, 1)[0])
+            dt = float(np.polyfit(slot, t - t[0], 1)[0])
         t0 = float(np.median(t - slot * dt))
         slot = np.round((t - t0) / dt)
     slot = slot.astype(np.int64)

@@ -22,6 +22,7 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 import rclpy
+from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.qos import (
@@ -197,7 +198,9 @@ class NodeDiagnostics:
         self._received_at_last = 0
         self._problems_at_last = 0
         self._last_time = time.monotonic()
-        node.create_timer(period, self.publish)
+        # A steady clock: a node on simulated time (use_sim_time) reports before /clock runs,
+        # which is when a launcher waits on the report (the matched subscriptions).
+        node.create_timer(period, self.publish, clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def received(self):
         """Count one accepted input message."""

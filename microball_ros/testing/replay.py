@@ -254,6 +254,7 @@ def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=N
             replay_qos(bag.topics[topic].qos_profiles_yaml) if topic in bag.topics
             else matching_qos(True, False), raw=True)
         for topic, kind in types.items()]
+    statuses = harness.diagnostics()
     player = harness.add(Player(bag, topics=inputs, context=context))
     process = None
     try:
@@ -273,6 +274,7 @@ def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=N
                         for p in player.publishers_by_topic.values())
             and all(s.get_publisher_count() >= 1 for s in subscriptions), connect_timeout,
             f'{name} to connect to {", ".join([*inputs, *types])}')
+        _wait_for_writers(harness, statuses, list(types), connect_timeout)
         for topic in types:
             received.qos[topic] = qos_profiles_yaml(
                 [i.qos_profile for i in harness.probe.get_publishers_info_by_topic(topic)])
@@ -291,6 +293,25 @@ def replay(bag, node, *, inputs=None, outputs=None, parameters=None, node_name=N
     check = Check(verdict, tuple(types), bag.platform, fingerprint.fingerprint())
     return Replay(bag, name, inputs, types, values, published, received, check, timed_out,
                   process)
+
+
+def _wait_for_writers(harness, statuses, outputs, timeout, first_status=5.0):
+    """Spin until the node's writer of each output has matched a subscription.
+
+    The probe's subscriptions see the node's writers before those writers have matched them,
+    and what a writer publishes before its match is lost. Our nodes report their writers'
+    matches on /diagnostics (``subscribers: /topic``, once a second); a node that has sent no
+    status within ``first_status`` seconds is taken not to report them.
+    """
+    deadline = time.monotonic() + first_status
+    while not statuses and time.monotonic() < deadline:
+        harness.spin_once()
+    keys = {f'subscribers: /{topic.lstrip("/")}' for topic in outputs}
+
+    def matched():
+        return all(int(value) >= 1 for values in statuses.values()
+                   for key, value in values.items() if key in keys)
+    harness.spin_until(matched, timeout, "the node's writers to match this probe")
 
 
 def _wait_for(harness, received, expected, timeout):

@@ -92,20 +92,23 @@ def simulate_slider(law: FrictionLaw, t: npt.ArrayLike, stator_position: npt.Arr
     run_in: seconds of the start of the stator record replayed before t[0], so the returned
     motion is past the start-up transient. Use a whole number of stator periods.
     """
-    t, stator_position = check_samples(t, stator_position)
-    if not 0 <= run_in <= t[-1] - t[0]:
-        raise InputError(f'run_in must be between 0 and the record length {t[-1] - t[0]:g} s')
-    stator = CubicSpline(t, stator_position)
+    stamps, stator_position = check_samples(t, stator_position)
+    # Time from the first sample: steps of 1 ms added to stamps since the epoch (1.7e9 s)
+    # would be rounded to 2.4e-7 s each.
+    time = stamps - stamps[0]
+    if not 0 <= run_in <= time[-1]:
+        raise InputError(f'run_in must be between 0 and the record length {time[-1]:g} s')
+    stator = CubicSpline(time, stator_position)
     stator_velocity = stator.derivative()
-    start = t[0] - run_in
-    n_steps = math.ceil((t[-1] - start) / dt - 1e-9)
+    start = time[0] - run_in
+    n_steps = math.ceil((time[-1] - start) / dt - 1e-9)
     half_steps = start + 0.5 * dt * np.arange(2 * n_steps + 1)
     # During the run-in the stator replays the start of the record, shifted back by run_in.
-    replayed = np.where(half_steps < t[0], half_steps + run_in, half_steps)
+    replayed = np.where(half_steps < time[0], half_steps + run_in, half_steps)
     if slider0 is None:
-        slider0 = (float(stator(t[0])), float(stator_velocity(t[0])))
+        slider0 = (float(stator(time[0])), float(stator_velocity(time[0])))
     state0 = np.asarray(slider0, dtype=float)
     if len(state0) == 2:
         state0 = np.concatenate([state0, law.initial_state()])
     states = integrate_rk4(law, state0, stator_velocity(replayed), dt)
-    return CubicHermiteSpline(half_steps[::2], states[:, 0], states[:, 1])(t)
+    return CubicHermiteSpline(half_steps[::2], states[:, 0], states[:, 1])(time)

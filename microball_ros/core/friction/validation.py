@@ -17,15 +17,20 @@ from microball_ros.core.friction.laws import FrictionLaw
 from microball_ros.core.friction.simulation import check_samples, simulate_slider
 
 
-def fit_sinusoid(t: npt.ArrayLike, x: npt.ArrayLike, frequency: float) -> tuple[float, float]:
-    """Return (amplitude, phase) of the component at frequency: x ~ c0 + c1 t + R sin(w t + phi).
+def fit_sinusoid(t: npt.ArrayLike, x: npt.ArrayLike, frequency: float,
+                 origin: float = 0.0) -> tuple[float, float]:
+    """Return (amplitude, phase): x ~ c0 + c1 t + R sin(w (t - origin) + phi), w = 2 pi frequency.
 
     Least squares with the mean and a linear drift fitted alongside, so slow drift does not leak
-    into the fundamental; the phase is in (-pi, pi].
+    into the fundamental; the phase is in (-pi, pi]. Give stamps since the epoch (1.7e9 s) an
+    ``origin`` near them (the same one for phases to be compared): w t itself would be
+    rounded to 4e-6 rad, different noise on every sample and a result that depends on the
+    last bit of the frequency.
     """
     t, x = check_samples(t, x)
     w = 2.0 * math.pi * frequency
-    basis = np.column_stack([np.ones_like(t), t - t.mean(), np.sin(w * t), np.cos(w * t)])
+    angle = w * (t - origin)
+    basis = np.column_stack([np.ones_like(t), t - t.mean(), np.sin(angle), np.cos(angle)])
     _, _, sine, cosine = np.linalg.lstsq(basis, x, rcond=None)[0]
     return float(math.hypot(sine, cosine)), float(math.atan2(cosine, sine))
 
@@ -89,12 +94,13 @@ def validate(law: FrictionLaw, t: npt.ArrayLike, stator_position: npt.ArrayLike,
     simulated = np.full_like(t, np.nan)
     simulated[stator_seen] = simulate_slider(law, t[stator_seen], stator_position[stator_seen],
                                              dt=dt, run_in=run_in)
+    origin = t[0]  # one phase reference for the three fits
     stator_amplitude, stator_phase = fit_sinusoid(t[stator_seen], stator_position[stator_seen],
-                                                  frequency)
+                                                  frequency, origin)
     amplitude_simulated, phase_simulated = fit_sinusoid(t[stator_seen], simulated[stator_seen],
-                                                        frequency)
+                                                        frequency, origin)
     amplitude_measured, phase_measured = fit_sinusoid(t[slider_seen], slider_position[slider_seen],
-                                                      frequency)
+                                                      frequency, origin)
     return ValidationResult(
         frequency=frequency, stator_amplitude=stator_amplitude,
         slider_amplitude_simulated=amplitude_simulated,
