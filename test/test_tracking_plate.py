@@ -465,3 +465,25 @@ def test_long_smears_on_a_textured_plate_report_no_wrong_position():
         x = np.array([m.position_px if m.valid else math.nan for m in found])
         reported = np.isfinite(x)
         assert np.all(np.abs(x[reported] - truth[reported]) <= 2.0), name
+
+
+@pytest.mark.parametrize('fraction, curved', [(1.0, True), (0.5, False)])
+def test_a_search_after_a_loss_covers_a_whole_period_exposure(fraction, curved):
+    # The paper's motion at 30 fps: 187 px amplitude, 2.95 Hz. Exposed the whole frame
+    # period, a mark smears over up to 2 pi 187 2.95 / 30 = 116 px and, at a turning point,
+    # its path bends by A w^2 / 2 = 36 px: the search holds blurs to 128 px and, then only,
+    # the motion's own curved kernels.
+    from microball_ros.core.tracking.plate_search import search_kernels
+    from microball_ros.core.tracking.smear import fit_motion
+
+    omega = 2 * np.pi * 2.95 / 30
+    frames = np.arange(60)
+    centres = 360 - 187 * np.sinc(omega * fraction / 2 / np.pi) * np.cos(omega * frames)
+    motion = fit_motion(centres, fraction)
+    assert motion.omega == pytest.approx(omega, rel=1e-6)
+    kernels = search_kernels(motion, True)
+    assert max(blur for blur, _ in kernels) >= 116 * fraction
+    bends = [abs(curve) for _, curve in kernels]
+    assert (max(bends) == pytest.approx(187 * omega ** 2 * fraction ** 2 / 2, rel=0.05)
+            if curved else max(bends) == 0.0)
+    assert len(search_kernels(motion, False)) == 36  # a long smear: its bank alone

@@ -40,14 +40,15 @@ averaged over the exposure. The tracker
    profile over the whole learned plate placed at the predicted position, so the texture is not
    mistaken for light and the mark's contrast is relative to the plate next to it in the same
    frame (flicker does not look like a covered mark); then searches the mark by a matched
-   filter of ``D`` smeared by the predicted motion, gated around the position predicted from
-   the recent track (``MotionPredictor``, core.tracking.predict) so texture dips never win,
-   over the whole ROI after a loss (a first fit poorer than priming's is refused then);
+   filter of ``D`` smeared by the predicted motion (a sinusoid of the priming track's
+   frequency), gated around the predicted position (``MotionPredictor``) so texture dips
+   never win; after a loss over the whole ROI (plate_search.search_kernels), where a first
+   fit poorer than priming's is refused;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
    common to data and model, is signal rather than error; a fit far worse than priming's is
    restarted from short kernels (their blur and curvature are hardly separable);
-4. checks the mark clear of the ROI edges, its contrast ``g`` against recent frames (a covered
-   mark loses contrast; a jump of it, something passing beside the mark, is refused:
+4. checks the mark's path clear of the ROI edges, its contrast ``g`` against recent frames
+   (a covered mark loses contrast; a jump of it, something passing beside the mark, is refused:
    core.tracking.gains) and the fit's residual against the residuals while priming: a failed
    check gives NaN with a quality below ``min_quality``; positions are never invented.
 
@@ -67,7 +68,7 @@ from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.gains import MarkGains
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, grid_window
-from microball_ros.core.tracking.plate_search import match_plate, plate_level
+from microball_ros.core.tracking.plate_search import match_plate, plate_level, search_kernels
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
@@ -87,6 +88,7 @@ from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent
 from microball_ros.core.tracking.smear import (
     PeriodicMotion,
+    fit_motion,
     least_smeared,
     local_kernel,
     path_range,
@@ -96,7 +98,6 @@ from microball_ros.core.tracking.smear import (
 
 ROUNDS = 4
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
-SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 # A plain plate: the plate is tried only for a mark with narrow parts (priming.narrow_shape):
 # a profile filling under NARROW_FILL of its extent (a box 0.85, a blob 0.68, a cross 0.55-0.62,
@@ -142,6 +143,7 @@ class PlateMarkTracker:
         self._predictor = MotionPredictor()
         self._gains = MarkGains(int(self.config.area_history))  # and the jump guard
         self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
+        self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
         self._refused = False  # a long smear whose plate could not be learned: all NaN
         self._offset = 0.0  # px added to the plate's positions (on a plain plate)
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
@@ -242,6 +244,8 @@ class PlateMarkTracker:
         ratio = jitter / float(np.sqrt(np.mean(sigmas ** 2)))
         if 1.0 < ratio <= MAX_SIGMA_SCALE:
             self._sigma_scale = ratio
+        if self.texture >= TEXTURE_SCORE and self._motion is None:  # its kernels, from now
+            self._periodic = fit_motion(positions, self.exposure_fraction)
 
     def _check_smear(self, frames) -> None:
         """Keep a long smear's plate if ``smear_verdict`` trusts it; else refuse every frame."""
@@ -304,7 +308,7 @@ class PlateMarkTracker:
 
     def _forget(self) -> None:
         """Drop a learned plate: every frame is measured by the centroid tracker again."""
-        self.plate = self._full = self._motion = None
+        self.plate = self._full = self._motion = self._periodic = None
         self.weights = self.static = self.flat = None
         self._half = self._outer = 8.0
         self._shift, self._rms, self._offset = 0.0, 1.0, 0.0
@@ -498,9 +502,10 @@ class PlateMarkTracker:
         prediction, lost = self._predictor.predict(), self._predictor.lost()
         f = self.exposure_fraction
         kernel = None
-        if prediction is not None and self._motion is not None:
+        motion = self._motion if self._motion is not None else self._periodic
+        if prediction is not None and motion is not None:
             kernel = local_kernel(prediction.previous, prediction.column, prediction.following,
-                                  self._motion.omega, f)
+                                  motion.omega, f)
         elif prediction is not None and math.isfinite(prediction.before):
             kernel = (abs(prediction.following - prediction.previous) / 2.0 * f,
                       (prediction.following - 2 * prediction.column + prediction.previous)
@@ -540,12 +545,9 @@ class PlateMarkTracker:
             return self._invalid('no match')
         delta, blur, curve, gain, _, rms, sigma = fit
         position = delta + j0 + plate.center
-        extent = reach + 0.5 * blur + 0.25 * abs(curve)
         peak = gain * float(plate.values.max())
-        first, last, moved = position - extent, position + extent, 4.0
-        if self._motion is not None:  # a long smear: the search finds its box, the fit the mark
-            moved, (first, last) = 4.0 + SMEAR_MOVE * blur, path_range(blur, curve, reach)
-            first, last = first + position, last + position
+        first, last = (position + end for end in path_range(blur, curve, reach))
+        moved = 4.0 + SMEAR_MOVE * blur if self._motion is not None else 4.0  # a long smear
         if abs(position - start) > moved or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
         if lost and rms > REACQUIRE_MATCH * self._rms:  # after a loss: maybe a false match
@@ -568,13 +570,13 @@ class PlateMarkTracker:
         self._kernel = (blur, curve)
         return MarkMeasurement(position + self.roi[0] + self._offset, quality,
                                sigma_px=sigma * self._sigma_scale,
-                               contrast=peak, extent_px=2.0 * extent)
+                               contrast=peak, extent_px=last - first)
 
     def _search(self, d, prediction, kernel):
         """Return (column, blur, curve): the best match of the smeared plate, or None.
 
         Gated around the prediction (one kernel, the predicted one) when there is one, else
-        over the whole ROI with a bank of blurs. Score: correlation over the model's norm.
+        over the whole ROI with a bank of kernels (``search_kernels``).
         """
         if self.plate is None:
             return None
@@ -585,10 +587,8 @@ class PlateMarkTracker:
             kernels = [kernel if kernel is not None else (0.0, 0.0)]
         else:
             lo, hi = 0, d.size
-            kernels = ([(b, 0.0) for b in SEARCH_BLURS] if self._motion is None
-                       else self._motion.bank())
-            if kernel is not None:
-                kernels.append(kernel)
+            kernels = search_kernels(self._motion or self._periodic, self._motion is None,
+                                     kernel)
         lo, hi = max(lo, 0), min(hi, d.size)
         if hi <= lo:
             return None

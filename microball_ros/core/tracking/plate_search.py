@@ -7,6 +7,27 @@ import numpy as np
 from microball_ros.core.tracking.plate_model import PlateModel
 from microball_ros.core.tracking.search import peak_offset
 
+SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0, 96.0, 128.0)  # px; 128: a whole-period exposure
+CURVED = 16.0  # px: a path curved more than this (a turning point) is not a straight blur
+
+
+def search_kernels(motion, blurs: bool, kernel=None) -> list[tuple[float, float]]:
+    """Return the (blur, curve) kernels of a search over the whole ROI (after a loss).
+
+    ``blurs``: straight paths of ``SEARCH_BLURS``; ``motion`` (a core.tracking.smear
+    PeriodicMotion, or None): a long smear's kernels at 36 phases of a period, else (with
+    ``blurs``) those at 12 phases if some curve more than ``CURVED`` px (the turning points
+    of a long exposure); ``kernel``: the predicted one, if any.
+    """
+    kernels = [(b, 0.0) for b in SEARCH_BLURS] if blurs else []
+    if motion is not None and not blurs:
+        kernels += motion.bank(36)
+    elif motion is not None:
+        bank = motion.bank(12)
+        if max(abs(curve) for _, curve in bank) > CURVED:
+            kernels += bank
+    return kernels + ([kernel] if kernel is not None else [])
+
 
 def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, reach: float):
     """Return (column, blur, curve): the best match of the smeared plate in ``d``, or None.
