@@ -531,14 +531,14 @@ class PlateMarkTracker:
                 return self._invalid('too dark')
         size = plate.size
         window, valid, j0 = grid_window(d, start, size, size // 2)
-        fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve,
-                             reach + 8.0)
-        if fit is None or fit[5] > (cfg.match_tolerance + 0.5) * self._rms:
-            # A short kernel's blur and curvature are hardly separable: the fit can stop in
-            # a false minimum. Restart it from a few short kernels and keep the best.
-            for restart in RESTART_BLURS:
-                other = plate.fit(window, valid, start - j0 - plate.center, restart,
-                                       0.0, reach + 8.0)
+        fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0)
+        tolerance = REACQUIRE_MATCH if lost else cfg.match_tolerance + 0.5
+        if fit is None or fit[5] > tolerance * self._rms:
+            # A false minimum (short kernels' blur and curvature are hardly separable), or the
+            # steps ran out (a turning point): go on from there, restart from short kernels.
+            starts = [(start - j0 - plate.center, b, 0.0) for b in RESTART_BLURS]
+            for d0, b0, c0 in starts if fit is None else [fit[:3], *starts]:
+                other = plate.fit(window, valid, d0, b0, c0, reach + 8.0)
                 if other is not None and (fit is None or other[5] < fit[5]):
                     fit = other
         if fit is None:
