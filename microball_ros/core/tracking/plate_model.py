@@ -397,9 +397,7 @@ class PlateModel:
 
     def local(self, shift: float, support: float) -> 'PlateModel':
         """Return the part within ``support`` of ``origin + shift`` as a small model there."""
-        size = 64
-        while size < 2 * support + 32:
-            size *= 2
+        size = fft_size(max(64, int(math.ceil(2 * support + 32))))
         local = PlateModel(size, support)
         index = np.arange(size) - local.center + self.center
         local.values = self.model(-shift, 0.0, 0.0).take(index, mode='wrap') * tukey(
