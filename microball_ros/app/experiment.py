@@ -31,7 +31,7 @@ import yaml
 from microball_ros.app.isolation import ForeignPublisherCheck, IsolationError, claim_domain
 from microball_ros.core import bench, rig
 from microball_ros.nodes.camera_tracker import reliable_images
-from microball_ros.nodes.common import DATA_QOS
+from microball_ros.nodes.common import DATA_QOS, diagnostic_values, subscribers_key
 
 NODES = ('servo_commander', 'bench_simulator', 'camera_tracker', 'three_stage_estimator',
          'friction_identifier')
@@ -230,7 +230,8 @@ class _Monitor:
         self.last_change = time.monotonic()
         self.foreign = ForeignPublisherCheck(RUN_PUBLISHERS)
         self.statuses = {}  # node name -> its newest /diagnostics values
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+        self.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                      lambda msg: self.statuses.update(diagnostic_values(msg)),
                                       10)
         for message_type, topic, callback in (
                 (BenchState, 'bench/ground_truth', self._on_frame),
@@ -242,13 +243,9 @@ class _Monitor:
     def _touch(self):
         self.last_change = time.monotonic()
 
-    def _on_diagnostics(self, msg):
-        for status in msg.status:
-            self.statuses[status.name] = {kv.key: kv.value for kv in status.values}
-
     def writers_matched(self, ready):
         """Return True once each node's writer has matched the subscriptions ready counts."""
-        return all(int(self.statuses.get(node, {}).get(f'subscribers: /{topic}', 0))
+        return all(int(self.statuses.get(node, {}).get(subscribers_key(topic), 0))
                    >= ready.get(topic, 1) for topic, node in _WRITERS.items())
 
     def _on_frame(self, msg):

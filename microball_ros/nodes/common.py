@@ -242,7 +242,7 @@ class NodeDiagnostics:
                   'dropped': str(sum(self.drops.values())), 'last error': self.last_error}
         values.update({f'dropped: {kind}': str(n) for kind, n in sorted(self.drops.items())})
         values.update({name: str(n) for name, n in sorted(self.counts.items())})
-        values.update({f'subscribers: {p.topic_name}': str(p.get_subscription_count())
+        values.update({subscribers_key(p.topic_name): str(p.get_subscription_count())
                        for p in self._outputs})
         level = DiagnosticStatus.WARN if new_problems else DiagnosticStatus.OK
         message = (f'{new_problems} dropped or failed in the last period' if new_problems
@@ -256,6 +256,16 @@ class NodeDiagnostics:
         array = DiagnosticArray(status=[self.status()])
         array.header.stamp = self._node.get_clock().now().to_msg()
         self._publisher.publish(array)
+
+
+def subscribers_key(topic):
+    """Return the /diagnostics key of an output's matched subscriptions (``watch_output``)."""
+    return f'subscribers: /{topic.lstrip("/")}'
+
+
+def diagnostic_values(array):
+    """Return {status name: {key: value}} of a diagnostic_msgs/DiagnosticArray."""
+    return {status.name: {kv.key: kv.value for kv in status.values} for status in array.status}
 
 
 def stamp_nanoseconds(stamp):

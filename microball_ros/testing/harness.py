@@ -4,7 +4,7 @@ import time
 
 from rclpy.executors import SingleThreadedExecutor
 
-from microball_ros.nodes.common import DATA_QOS
+from microball_ros.nodes.common import DATA_QOS, diagnostic_values, subscribers_key
 
 
 class Harness:
@@ -85,10 +85,9 @@ class Harness:
 
             self._statuses = {}
 
-            def on_array(msg):
-                for status in msg.status:
-                    self._statuses[status.name] = {kv.key: kv.value for kv in status.values}
-            self.probe.create_subscription(DiagnosticArray, '/diagnostics', on_array, 10)
+            self.probe.create_subscription(
+                DiagnosticArray, '/diagnostics',
+                lambda msg: self._statuses.update(diagnostic_values(msg)), 10)
         return self._statuses
 
     def wait_for_output_subscribers(self, node, topic, count=1, timeout=30.0):
@@ -101,7 +100,7 @@ class Harness:
         slash); ``topic`` is resolved as the node resolved it (a leading slash added).
         """
         statuses = self.diagnostics()
-        key = f'subscribers: /{topic.lstrip("/")}'
+        key = subscribers_key(topic)
         self.spin_until(lambda: int(statuses.get(node, {}).get(key, 0)) >= count, timeout,
                         f'{count} subscriber(s) matched by {node} on {topic}')
 

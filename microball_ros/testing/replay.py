@@ -32,7 +32,7 @@ from microball_ros.io.bags.schema import qos_profiles_yaml
 from microball_ros.io.bags.writer import BagWriter
 from microball_ros.io.compare import BYTE_IDENTICAL, compare_bags, decode
 from microball_ros.io.conversions import message_class
-from microball_ros.nodes.common import matching_qos
+from microball_ros.nodes.common import matching_qos, subscribers_key
 from microball_ros.nodes.recorder import publish_time
 from microball_ros.testing.harness import Harness
 from microball_ros.testing.process import NodeProcess
@@ -306,7 +306,7 @@ def _wait_for_writers(harness, statuses, outputs, timeout, first_status=5.0):
     deadline = time.monotonic() + first_status
     while not statuses and time.monotonic() < deadline:
         harness.spin_once()
-    keys = {f'subscribers: /{topic.lstrip("/")}' for topic in outputs}
+    keys = {subscribers_key(topic) for topic in outputs}
 
     def matched():
         return all(int(value) >= 1 for values in statuses.values()

@@ -237,6 +237,8 @@ class PlateMarkTracker:
         positions, found = (self._track_priming(frames, self.measure) if tracked is None
                             else tracked)
         self._gains.learn_spread()  # from the plate's last pass over the priming frames
+        if self.texture >= TEXTURE_SCORE and self._motion is None:  # its kernels, from now
+            self._periodic = fit_motion(positions, self.exposure_fraction)
         sigmas = np.array([m.sigma_px for m in found if m.valid])
         jitter = motion_jitter([positions])[0]
         if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
@@ -244,8 +246,6 @@ class PlateMarkTracker:
         ratio = jitter / float(np.sqrt(np.mean(sigmas ** 2)))
         if 1.0 < ratio <= MAX_SIGMA_SCALE:
             self._sigma_scale = ratio
-        if self.texture >= TEXTURE_SCORE and self._motion is None:  # its kernels, from now
-            self._periodic = fit_motion(positions, self.exposure_fraction)
 
     def _check_smear(self, frames) -> None:
         """Keep a long smear's plate if ``smear_verdict`` trusts it; else refuse every frame."""
@@ -502,7 +502,7 @@ class PlateMarkTracker:
         prediction, lost = self._predictor.predict(), self._predictor.lost()
         f = self.exposure_fraction
         kernel = None
-        motion = self._motion if self._motion is not None else self._periodic
+        motion = self._motion or self._periodic
         if prediction is not None and motion is not None:
             kernel = local_kernel(prediction.previous, prediction.column, prediction.following,
                                   motion.omega, f)
