@@ -22,7 +22,7 @@ from microball_ros.core.camera import box_profile
 from microball_ros.core.tracking import Tracker, TrackerConfig, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.plate import NARROW_FILL, NARROW_GAIN, PlateMarkTracker
-from microball_ros.core.tracking.plate_model import kernel_derivatives
+from microball_ros.core.tracking.plate_model import PlateSolver, kernel_derivatives
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
     mark_shape,
@@ -125,6 +125,30 @@ def test_centroid_tracker_fails_on_this_scene(textured_scene, monkeypatch):
     reported = np.isfinite(x)
     error = x[reported] - truth[reported]
     assert np.count_nonzero(~reported) > 2 or np.sqrt(np.mean(error ** 2)) > 0.3
+
+
+def test_plate_learning_runs_until_the_positions_settle():
+    """Start positions 5 px off: the learning goes on until its fits stop moving them.
+
+    Measured (60 frames, 5 % texture, exact kernels): the spread of the learned positions about
+    the truth (their common offset is the plate's origin, set later) is 0.0274 px after 40
+    rounds, 0.0277 px settled (0.01 px) after 7, 0.0361 px after the 4 rounds once fixed.
+    """
+    frames, truth = render(n_frames=60, rows=4, seed=5, texture=0.05)
+    profiles = frames.mean(axis=1)
+    start = truth + np.random.default_rng(1).normal(0.0, 5.0, truth.size)
+    kernels = np.full((truth.size, 2), np.nan)  # blur and curvature from the true motion
+    kernels[1:-1, 0] = np.abs(truth[2:] - truth[:-2]) / 4.0
+    kernels[1:-1, 1] = (truth[2:] - 2 * truth[1:-1] + truth[:-2]) / 8.0
+    spread = {}
+    for rounds, settled in ((4, 0.0), (16, 0.01), (40, 0.0)):
+        solver = PlateSolver(profiles, np.median(profiles, axis=0), 1.0)
+        solver.learn(start, kernels, 20.5, rounds, settled)
+        spread[rounds] = float(np.std((solver.positions - truth)[1:-1]))
+        if settled:
+            assert solver.rounds < rounds
+    assert spread[16] <= 1.05 * spread[40] < 0.035
+    assert spread[4] > 1.2 * spread[40]
 
 
 def test_texture_score_plain_versus_textured():

@@ -28,7 +28,8 @@ averaged over the exposure. The tracker
    kernel: first positions from the dip's centroid (the parts of a mark, such as two bars,
    joined; a gain per frame divided out) and kernels from neighbouring frames, then rounds of
    ``D`` (preconditioned conjugate gradients, exact for partial coverage), static field and
-   lights (closed form), positions and kernels (fits). ``D``'s origin is then moved to the
+   lights (closed form), positions and kernels (fits), until the fits move the positions by
+   under ``SETTLED`` px RMS (at most ``ROUNDS``). ``D``'s origin is then moved to the
    mark's centre, the mid-point of its two outer edges (half-depth crossings against the levels
    on either side of each edge), which a multiplicative texture hardly moves (a centroid is
    pulled by it). All of it is learned twice: the second time from the positions and kernels
@@ -96,7 +97,7 @@ from microball_ros.core.tracking.smear import (
     smear_verdict,
 )
 
-ROUNDS = 4
+ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 # A plain plate: the plate is tried only for a mark with narrow parts (priming.narrow_shape):
@@ -244,8 +245,7 @@ class PlateMarkTracker:
         if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
             return
         ratio = jitter / float(np.sqrt(np.mean(sigmas ** 2)))
-        if 1.0 < ratio <= MAX_SIGMA_SCALE:
-            self._sigma_scale = ratio
+        self._sigma_scale = ratio if 1.0 < ratio <= MAX_SIGMA_SCALE else 1.0
 
     def _check_smear(self, frames) -> None:
         """Keep a long smear's plate if ``smear_verdict`` trusts it; else refuse every frame."""
@@ -311,8 +311,7 @@ class PlateMarkTracker:
         self.plate = self._full = self._motion = self._periodic = None
         self.weights = self.static = self.flat = None
         self._half = self._outer = 8.0
-        self._shift, self._rms, self._offset = 0.0, 1.0, 0.0
-        self._sigma_scale = 1.0
+        self._shift, self._rms, self._offset, self._sigma_scale = 0.0, 1.0, 0.0, 1.0
         self._gains.forget_spread()
         self._refused = False
         self.reset()
@@ -411,7 +410,8 @@ class PlateMarkTracker:
                               (after - 2 * middle + before) * f * f / 2)
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
-        rms = solver.learn(positions, kernels, reach + 8, SMEAR_ROUNDS if self._motion else ROUNDS)
+        rounds = SMEAR_ROUNDS if self._motion else ROUNDS
+        rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED)
         if solver.plate is None:
             return
         center = solver.plate.mark_center(reach)
