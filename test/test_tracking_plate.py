@@ -19,18 +19,20 @@ from tracking_scenes import render as render_scene
 
 from microball_ros.core import bench, rig
 from microball_ros.core.camera import box_profile
-from microball_ros.core.tracking import Tracker, TrackerConfig, track
+from microball_ros.core.tracking import Tracker, TrackerConfig, plate_model, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.plate import NARROW_FILL, NARROW_GAIN, PlateMarkTracker
-from microball_ros.core.tracking.plate_model import PlateSolver, kernel_derivatives
+from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, kernel_derivatives
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
+    deep_rows,
     mark_shape,
     motion_jitter,
     plate_is_textured,
     row_flat_field,
     texture_score,
 )
+from microball_ros.core.tracking.profile import row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.smear import fit_motion, local_kernel, path_range
 from microball_ros.core.tracking.template import kernel_spectrum
@@ -149,6 +151,46 @@ def test_plate_learning_runs_until_the_positions_settle():
             assert solver.rounds < rounds
     assert spread[16] <= 1.05 * spread[40] < 0.035
     assert spread[4] > 1.2 * spread[40]
+
+
+def test_deep_rows_are_the_rows_of_a_small_mark_beside_a_coarse_texture():
+    """A small mark in a tall ROI on a coarse texture: its rows are the deep ones.
+
+    A 10 x 10 px mark, 50 % deep, in rows 27-36 of a 64-row ROI, on a texture of 10 % std
+    (2.5 px grain) that moves with it: the rows' mean depths put 53 % of the weight on texture
+    rows (the learned plate was then 6 px off on such a video); the deepest points do not.
+    """
+    rng = np.random.default_rng(7)
+    grain = gaussian_filter(rng.standard_normal((64, 600)), 2.5)
+    plate = 1 + 0.1 * grain / grain.std()
+    plate[27:37, 295:305] *= 0.5
+    starts = np.rint(200 - 40 * np.sin(np.arange(20) / 3.0)).astype(int)
+    regions = [160 * plate[:, s:s + 200] + rng.normal(0.0, 1.5, (64, 200)) for s in starts]
+    positions = 299.5 - starts  # the mark's centre, ROI columns
+    mask = deep_rows(regions, positions, np.full(20, 10.0), 'dark', 0.5)
+    rows = np.flatnonzero(mask)
+    assert rows.min() >= 25 and rows.max() <= 38 and np.all(mask[27:37]), rows
+    weights = np.median([row_weights(r, int(p - 5), int(p + 5), 8, 'dark')
+                         for r, p in zip(regions, positions, strict=True)], axis=0)
+    assert weights[np.r_[0:26, 38:64]].sum() > 0.4  # what the mask is for
+
+
+def test_mark_centre_is_the_centre_of_symmetry_when_a_texture_dip_moves_an_edge(monkeypatch):
+    """A texture dip beside a shallow arm moves one edge: the centre of symmetry is kept.
+
+    A cross centred at +3 px (arms 0.1 deep, +-11 px; bar 0.25, +-2 px) with a texture dip
+    (0.05) on its left arm: the half-depth crossings take the dip for the left edge (-1.5 px);
+    the centre of symmetry is within 0.2 px of +3.
+    """
+    model = PlateModel(256, 100.0)
+    u = (np.arange(256) - model.center).astype(float)
+    deficit = 0.1 * (np.abs(u - 3.0) <= 11) + 0.15 * (np.abs(u - 3.0) <= 2)
+    deficit += 0.05 * np.exp(-0.5 * ((u + 6.0) / 1.5) ** 2)
+    model.values = gaussian_filter1d(deficit, 0.8)
+    model.spectrum = np.fft.rfft(model.values)
+    assert abs(model.mark_center(14.0) - 3.0) < 0.2
+    monkeypatch.setattr(plate_model, 'ASYMMETRY_MOVE', math.inf)
+    assert model.mark_center(14.0) < 0.0  # the edges alone
 
 
 def test_texture_score_plain_versus_textured():

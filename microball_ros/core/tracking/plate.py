@@ -21,21 +21,21 @@ the exposure's motion kernel ``K`` (core.tracking.template: a quadratic path, bl
 curvature ``Q``). A frame's deficit is ``d(x) = c + g (D * K)(x - s)`` with ``s`` the position
 averaged over the exposure. The tracker
 
-1. learns from the priming frames the row weights (the mark's depth per row) and, jointly
-   (``PlateSolver``, alternating least squares), the whole plate's deficit ``D`` seen through
-   the ROI, the static field (illumination and dust fixed in the image) with each frame's light
-   (flicker and a drifting gradient: a quadratic over the ROI), and each frame's position and
-   kernel: first positions from the dip's centroid (the parts of a mark, such as two bars,
-   joined; a gain per frame divided out) and kernels from neighbouring frames, then rounds of
-   ``D`` (preconditioned conjugate gradients, exact for partial coverage), static field and
-   lights (closed form), positions and kernels (fits), until the fits move the positions by
-   under ``SETTLED`` px RMS (at most ``ROUNDS``). ``D``'s origin is then moved to the
-   mark's centre, the mid-point of its two outer edges (half-depth crossings against the levels
-   on either side of each edge), which a multiplicative texture hardly moves (a centroid is
-   pulled by it). All of it is learned twice: the second time from the positions and kernels
-   the first plate measures (search and full fit), on the ROI divided by a row flat field
-   (``row_flat_field``: a pattern fixed in the image that differs between rows) when there is
-   one; kept if it fits better;
+1. learns from the priming frames the row weights (the mark's depth per row, in the rows it
+   is deep in: ``deep_rows``) and, jointly (``PlateSolver``, alternating least squares), the
+   whole plate's deficit ``D`` seen through the ROI, the static field (illumination and dust
+   fixed in the image) with each frame's light (flicker and a drifting gradient: a quadratic
+   over the ROI), and each frame's position and kernel: first positions from the dip's
+   centroid (the parts of a mark, such as two bars, joined; a gain per frame divided out) and
+   kernels from neighbouring frames, then rounds of ``D`` (preconditioned conjugate
+   gradients), static field and lights (closed form), positions and kernels (fits), until the
+   fits move the positions under ``SETTLED`` px RMS (at most ``ROUNDS``). ``D``'s origin is
+   then moved to the mark's centre, the mid-point of its outer edges (half-depth crossings,
+   or the centre of symmetry if they are pixels off it: ``PlateModel.mark_center``), which a
+   texture hardly moves (a centroid is pulled by it). All is learned twice: the second time
+   from the positions and kernels the first plate measures, on the ROI divided by a row flat
+   field (``row_flat_field``: a pattern fixed in the image that differs between rows) if
+   there is one; kept if it fits better;
 2. per frame divides the row-weighted profile by the static field and by the frame's light: a
    straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
    profile over the whole learned plate placed at the predicted position, so the texture is not
@@ -73,6 +73,7 @@ from microball_ros.core.tracking.plate_search import match_plate, plate_level, s
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
+    deep_rows,
     first_positions,
     motion_jitter,
     narrow_shape,
@@ -135,11 +136,9 @@ class PlateMarkTracker:
         self.static: np.ndarray | None = None
         self.flat: np.ndarray | None = None
         self._background: StaticBackground | None = None
-        self._half = 8.0
-        self._outer = 8.0
+        self._half = self._outer = 8.0  # px: the mark's half-width, and its reach in D
         self._full: PlateModel | None = None
-        self._shift = 0.0
-        self._rms = 1.0
+        self._shift, self._rms = 0.0, 1.0  # D's origin in the whole plate; priming's residual
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
         self._predictor = MotionPredictor()
         self._gains = MarkGains(int(self.config.area_history))  # and the jump guard
@@ -292,8 +291,7 @@ class PlateMarkTracker:
         if self.plate is not None:
             self._relearn(regions, frames)
         if self.plate is None:
-            self._forget()
-            return
+            return self._forget()
         tracked = self._track_priming(frames, self.measure)
         plate = tracked[0]
         lost = np.isfinite(centroid) & ~np.isfinite(plate)
@@ -372,7 +370,9 @@ class PlateMarkTracker:
         weights = [v for v in found if v is not None]
         if not weights:
             return
-        self.weights = np.median(weights, axis=0)
+        deep = deep_rows(regions, positions, extents, polarity, self.exposure_fraction,
+                         None if start is None else start[1])
+        self.weights = np.median(weights, axis=0) * (1.0 if deep is None else deep)
         self.weights /= max(float(self.weights.sum()), 1e-12)
         profiles = np.array([self.weights @ r.astype(np.float64) for r in regions])
         columns = np.arange(w)
@@ -547,7 +547,7 @@ class PlateMarkTracker:
         position = delta + j0 + plate.center
         peak = gain * float(plate.values.max())
         first, last = (position + end for end in path_range(blur, curve, reach))
-        moved = 4.0 + SMEAR_MOVE * blur if self._motion is not None else 4.0  # a long smear
+        moved = 4.0 + SMEAR_MOVE * blur if (self._motion or self._periodic) else 4.0  # smears
         if abs(position - start) > moved or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
         if lost and rms > REACQUIRE_MATCH * self._rms:  # after a loss: maybe a false match

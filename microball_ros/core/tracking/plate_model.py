@@ -15,6 +15,8 @@ import numpy as np
 from microball_ros.core.tracking.template import SEGMENTS, kernel_spectrum, tukey
 
 UPSAMPLE = 8  # the plate model's grid: 1/8 px
+ASYMMETRY_MOVE = 1.0  # px: PlateModel.mark_center's edges that far from the centre of symmetry
+ASYMMETRY_GAIN = 3.0  # ... and D that much less symmetric about them: the symmetry wins
 
 _U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
 _U2 = _U * _U - 1.0 / 12.0
@@ -216,7 +218,32 @@ class PlateModel:
             right = self._crossing(fine, u, int(above_right[-1]), level_right, 1)
             level_left = self._level(fine, u, left)
             level_right = self._level(fine, u, right)
-        return 0.5 * (left + right)
+        return self._symmetric(fine, u, reach, 0.5 * (left + right))
+
+    @staticmethod
+    def _symmetric(fine, u, reach, edges):
+        """Return ``edges``, or the centre of symmetry of D if the edges are far off it.
+
+        A texture dip beside a shallow part of the mark (a cross's arm 25 % deep) can cross
+        the edges' level on one side only: their mid-point is then pixels off. The centre of
+        symmetry (least squares of ``D(c + v) - D(c - v)``, ``|v| <= reach``) replaces it when
+        it is over ``ASYMMETRY_MOVE`` px away and D is much more symmetric about it
+        (``ASYMMETRY_GAIN``): the mark is symmetric, the texture beside it is not.
+        """
+        step = float(u[1] - u[0])
+        v = np.arange(-reach, reach + step / 2, step)
+
+        def asymmetry(c):
+            a, b = np.interp(c + v, u, fine), np.interp(c - v, u, fine)
+            return float(((a - b) ** 2).sum() / max(float((a * a + b * b).sum()), 1e-300))
+
+        centres = edges + np.arange(-0.5 * reach, 0.5 * reach + step / 2, step)
+        scores = np.array([asymmetry(c) for c in centres])
+        best = int(np.argmin(scores))
+        if (abs(float(centres[best]) - edges) > ASYMMETRY_MOVE
+                and asymmetry(edges) > ASYMMETRY_GAIN * float(scores[best])):
+            return float(centres[best])
+        return edges
 
     @staticmethod
     def _crossing(fine, u, index, level, side):

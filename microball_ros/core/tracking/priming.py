@@ -7,12 +7,13 @@ row-weighted profile; ``mark_shape``: whether a mark has narrow parts (a cross, 
 the deficit centroid is far from efficient; ``motion_jitter``: a track's scatter about a smooth
 periodic motion, to compare two trackers on the same frames; ``narrow_shape``: ``mark_shape``
 of the least smeared priming frames; ``first_positions``: each priming frame's mark from its
-dip, before anything is learned.
+dip, before anything is learned; ``deep_rows``: the rows the mark is deep in.
 """
 
 import math
 import warnings
 
+import cv2
 import numpy as np
 from scipy.optimize import minimize_scalar
 
@@ -31,6 +32,7 @@ MIN_FLAT_GAIN = 0.5
 HARMONICS = 4
 SHARP_BLUR = 6.0  # narrow_shape: frames smeared less than this (px) show the mark's shape
 SHAPE_FRAMES = 5  # narrow_shape: at most this many of them
+DEEP_ROW = 0.4  # deep_rows: a row whose deepest point is under this of the deepest row's: out
 
 
 def texture_score(regions: list[np.ndarray], marks: list[tuple[float, float]]) -> float:
@@ -260,3 +262,50 @@ def first_positions(regions: list[np.ndarray], polarity: str,
         if area > 0:
             positions[n], extents[n] = centroid, float(dip.hi - dip.lo + 1)
     return positions, extents
+
+
+def deep_rows(regions: list[np.ndarray], positions: np.ndarray, extents: np.ndarray,
+              polarity: str, fraction: float, kernels=None,
+              count: int = SHAPE_FRAMES) -> np.ndarray | None:
+    """Return a mask of the ROI rows the mark is deep in, or None if it cannot tell.
+
+    From the ``count`` least smeared frames (the blur of ``kernels``, else from neighbouring
+    ``positions`` and the exposure ``fraction``): per row, the deepest point (3 x 3 px mean)
+    of the relative deficit against the row's median, within half the 10th percentile of
+    ``extents`` plus half the blur of the mark's position, median over the frames; rows
+    under ``DEEP_ROW`` of the deepest are out, and so are the rows beyond them (the mark's
+    rows are one run, about the deepest). A texture beside a small mark in a tall ROI can
+    weigh as much as the mark in a row's mean deficit, never this much in its deepest point
+    (10 % of texture against a mark 50 % deep).
+    """
+    blurs = (np.abs(np.gradient(positions)) * fraction if kernels is None
+             else np.abs(np.array(kernels, dtype=float)[:, 0]))
+    half = 0.5 * float(np.nanpercentile(extents, 10)) if np.any(np.isfinite(extents)) else 0.0
+    usable = np.flatnonzero(np.isfinite(positions) & np.isfinite(blurs))
+    chosen = usable[np.argsort(blurs[usable], kind='stable')][:count]
+    if chosen.size < 3 or not half > 0:
+        return None
+    sign = 1.0 if polarity == 'dark' else -1.0
+    peaks = []
+    for n in chosen:
+        region = regions[n].astype(np.float64)
+        reach = half + 0.5 * float(blurs[n])
+        lo = max(int(math.floor(positions[n] - reach)), 0)
+        hi = min(int(math.ceil(positions[n] + reach)) + 1, region.shape[1])
+        level = np.median(region, axis=1)
+        if hi - lo < 3 or not np.all(level > 0):
+            return None
+        deficit = sign * (1.0 - region[:, lo:hi] / level[:, None])
+        peaks.append(cv2.blur(deficit, (3, 3)).max(axis=1))
+    peak = np.median(peaks, axis=0)
+    if not float(peak.max()) > 0:
+        return None
+    deep = peak >= DEEP_ROW * float(peak.max())
+    top = bottom = int(np.argmax(peak))  # the run of deep rows around the deepest: the mark's
+    while top > 0 and deep[top - 1]:
+        top -= 1
+    while bottom < deep.size - 1 and deep[bottom + 1]:
+        bottom += 1
+    mask = np.zeros(deep.size, dtype=bool)
+    mask[top:bottom + 1] = True
+    return mask
