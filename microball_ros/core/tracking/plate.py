@@ -351,9 +351,7 @@ class PlateMarkTracker:
         ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
         instead of the dip centroids and kernels from neighbouring frames.
         """
-        cfg = self.config
-        w = self.roi[2]
-        polarity = self.polarity
+        cfg, w, polarity = self.config, self.roi[2], self.polarity
         if polarity is None:
             return
         self.plate = None
@@ -372,7 +370,8 @@ class PlateMarkTracker:
             return
         deep = deep_rows(regions, positions, extents, polarity, self.exposure_fraction,
                          None if start is None else start[1])
-        self.weights = np.median(weights, axis=0) * (1.0 if deep is None else deep)
+        median = np.median(weights, axis=0)
+        self.weights = median * deep if deep is not None and (median * deep).sum() > 0 else median
         self.weights /= max(float(self.weights.sum()), 1e-12)
         profiles = np.array([self.weights @ r.astype(np.float64) for r in regions])
         columns = np.arange(w)

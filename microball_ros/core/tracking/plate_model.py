@@ -484,7 +484,7 @@ class PlateSolver:
         self.plate: PlateModel | None = None
         self.kernels = np.full((len(profiles), 2), np.nan)
         self.positions = np.full(len(profiles), np.nan)
-        self.rounds = 0  # how many ``learn`` ran
+        self.rounds = 0  # how many rounds ``learn`` ran
 
     def learn(self, positions, kernels, reach, rounds, settled=0.0) -> list[float]:
         """Learn from first positions and kernels (NaN: unknown); return the fits' residuals.
