@@ -410,7 +410,7 @@ class PlateMarkTracker:
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
         rounds = SMEAR_ROUNDS if self._motion else ROUNDS
-        rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED)
+        rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED, self.exposure_fraction)
         if solver.plate is None:
             return
         center = solver.plate.mark_center(reach)
