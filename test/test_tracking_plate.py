@@ -22,12 +22,8 @@ from microball_ros.core.camera import box_profile
 from microball_ros.core.tracking import Tracker, TrackerConfig, plate_model, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.plate import NARROW_FILL, NARROW_GAIN, PlateMarkTracker
-from microball_ros.core.tracking.plate_model import (
-    PlateModel,
-    PlateSolver,
-    kernel_derivatives,
-    motion_curvatures,
-)
+from microball_ros.core.tracking.plate_model import PlateModel, kernel_derivatives
+from microball_ros.core.tracking.plate_solver import PlateSolver, motion_curvatures
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
     deep_rows,

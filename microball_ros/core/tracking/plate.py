@@ -68,8 +68,9 @@ from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.gains import MarkGains
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
-from microball_ros.core.tracking.plate_model import PlateModel, PlateSolver, grid_window
+from microball_ros.core.tracking.plate_model import PlateModel, grid_window
 from microball_ros.core.tracking.plate_search import match_plate, plate_level, search_kernels
+from microball_ros.core.tracking.plate_solver import PlateSolver, motion_kernels
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
@@ -399,14 +400,8 @@ class PlateMarkTracker:
         self._half = 0.5 * float(np.nanpercentile(extents, 10) if start is None
                                  or len(start) < 4 else start[3])
         f = self.exposure_fraction
-        kernels = np.full((positions.size, 2), np.nan)
-        if start is not None:
-            kernels = np.array(start[1], dtype=float)
-        else:
-            for i in range(1, positions.size - 1):
-                before, middle, after = positions[i - 1:i + 2]
-                kernels[i] = (abs(after - before) / 2 * f,
-                              (after - 2 * middle + before) * f * f / 2)
+        kernels = (motion_kernels(positions, f) if start is None
+                   else np.array(start[1], dtype=float))
         solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
         reach = self._half + cfg.pad_px
         rounds = SMEAR_ROUNDS if self._motion else ROUNDS
