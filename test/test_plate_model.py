@@ -8,6 +8,7 @@ truth on frames made from the model itself.
 
 import numpy as np
 import pytest
+from scipy.special import erf
 
 from microball_ros.core.tracking.plate_model import PlateModel, kernel_spectra
 from microball_ros.core.tracking.template import kernel_spectrum
@@ -93,3 +94,36 @@ def test_fit_many_is_fit_frame_by_frame(iterations):
                           iterations=iterations)
         assert fit is not None and alone is not None
         assert np.allclose(fit, alone, rtol=1e-9, atol=1e-11)
+
+
+def test_a_fit_whose_steps_swing_returns_the_best_point_it_reached():
+    """A 6 px box (PSF 0.8 px) smeared by short kernels: blur and curvature hardly separable.
+
+    Gauss-Newton's steps can swing between blur and curvature and stop anywhere: the last
+    point's gain is then off (a false 'mark area changed' on a real 6 px mark, 4 of 240
+    frames). With ``best`` the fit returns the lowest residual it reached. Measured over 200
+    noisy frames (noise 2 % of the depth), the gain's scatter: 0.030 from the last point,
+    0.012 from the best, 0.012 from fits started at the truth.
+    """
+    size = 108
+    model = PlateModel(size, 30.0)
+    u = np.arange(size) - model.center
+    edge = 0.8 * np.sqrt(2.0)
+    model.values = 0.25 * (erf((u + 3.0) / edge) - erf((u - 3.0) / edge)) * (np.abs(u) < 40)
+    model.spectrum = np.fft.rfft(model.values)
+    rng = np.random.default_rng(1)
+    valid = np.ones(size, dtype=bool)
+    gains = {'last': [], 'best': [], 'truth': []}
+    for _ in range(200):
+        delta, blur, curve = rng.uniform(-0.5, 0.5), rng.uniform(0.0, 2.0), rng.uniform(-0.2, 0.2)
+        window = 0.01 + model.model(delta, blur, curve) + 0.01 * rng.standard_normal(size)
+        fits = {'last': model.fit(window, valid, delta + 0.05, 0.8 * blur, 0.0, 12.0),
+                'best': model.fit(window, valid, delta + 0.05, 0.8 * blur, 0.0, 12.0,
+                                  best=True),
+                'truth': model.fit(window, valid, delta, blur, curve, 12.0, best=True)}
+        assert fits['best'][5] <= fits['last'][5] + 1e-12
+        for name, fit in fits.items():
+            gains[name].append(fit[3])
+    scatter = {name: float(np.std(g)) for name, g in gains.items()}
+    assert scatter['best'] < 1.2 * scatter['truth'], scatter
+    assert scatter['last'] > 2.0 * scatter['truth'], scatter

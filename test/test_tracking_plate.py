@@ -17,24 +17,22 @@ from scipy.ndimage import gaussian_filter, gaussian_filter1d
 from tracking_scenes import SceneSpec, plates
 from tracking_scenes import render as render_scene
 
-from microball_ros.core import bench, rig
-from microball_ros.core.camera import box_profile
 from microball_ros.core.tracking import Tracker, TrackerConfig, plate_model, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
-from microball_ros.core.tracking.plate import NARROW_FILL, NARROW_GAIN, PlateMarkTracker
+import microball_ros.core.tracking.plate as plate_module
+from microball_ros.core.tracking.plate import PlateMarkTracker
 from microball_ros.core.tracking.plate_model import PlateModel, kernel_derivatives
 from microball_ros.core.tracking.plate_solver import PlateSolver, motion_curvatures
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
     deep_rows,
-    mark_shape,
     motion_jitter,
     plate_is_textured,
     row_flat_field,
+    steadier,
     texture_score,
 )
 from microball_ros.core.tracking.profile import row_weights
-from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.smear import fit_motion, local_kernel, path_range
 from microball_ros.core.tracking.template import kernel_spectrum
 import microball_ros.core.tracking.tracker as tracker_module
@@ -246,12 +244,22 @@ def test_texture_score_plain_versus_textured():
     assert plate_is_textured(list(rough), marks)
 
 
-def test_plain_plate_is_measured_exactly_like_the_centroid_tracker(monkeypatch):
+def test_plain_plate_keeps_the_learned_plate_only_when_it_tracks_steadier(monkeypatch):
+    """A 17 px bar on a plain plate: the plate's fit beats the centroid, else the centroid.
+
+    Measured 0.016 px RMS against the centroid's 0.022 (jitter over the priming frames 0.017
+    against 0.021). A plate not steadier than the centroid over the priming frames (here:
+    a margin no plate meets) is dropped, and every frame is then exactly the centroid's.
+    """
     frames, truth = render(n_frames=40, texture=0.0, static=0.0)
     plate = tracked(frames, PlateMarkTracker, monkeypatch)
     centroid = tracked(frames, CentroidMarkTracker, monkeypatch)
-    assert np.array_equal(plate, centroid, equal_nan=True)
-    assert np.nanmax(np.abs(plate - truth)) < 0.5
+    assert np.all(np.isfinite(plate))
+    ours, theirs = (float(np.sqrt(np.mean((x - truth) ** 2))) for x in (plate, centroid))
+    assert ours < 0.85 * theirs and ours < 0.02, (ours, theirs)
+    monkeypatch.setattr(plate_module, 'PLAIN_MARGIN', 0.0)
+    dropped = tracked(frames, PlateMarkTracker, monkeypatch)
+    assert np.array_equal(dropped, centroid, equal_nan=True)
 
 
 @pytest.mark.parametrize(('blur', 'curve'), [(0.0, 0.0), (12.0, 3.0), (55.0, -8.0)])
@@ -357,23 +365,6 @@ def test_row_flat_field_finds_a_pattern_that_differs_between_rows():
     assert flat is None or float(np.std(flat - 1)) < 0.015
 
 
-def test_mark_shape_tells_a_box_from_a_pair_of_bars():
-    """Exact pixel-integrated profiles (PSF 0.9 px): a 17 px box and two 6 px bars 20 px apart."""
-    columns = np.arange(160, dtype=float)
-    box = 0.6 * box_profile(columns, [80.3], 8.5, 0.9)
-    pair = 0.6 * (box_profile(columns, [70.3], 3.0, 0.9) + box_profile(columns, [90.3], 3.0, 0.9))
-    rng = np.random.default_rng(2)
-    fill, gain = mark_shape(box + rng.normal(0, 0.004, columns.size), 4)
-    # Measured 0.846 / 3.2 (the 5 px smoothing widens the box to 20 columns at a quarter).
-    assert 0.8 < fill < 0.9 and fill > NARROW_FILL
-    assert 2.0 < gain < 4.0
-    fill, gain = mark_shape(pair + rng.normal(0, 0.004, columns.size), 4)
-    # Measured 0.44 / 30: the centroid's variance is 30 times the bound's.
-    assert fill < 0.55 < NARROW_FILL
-    assert gain > 10.0 * NARROW_GAIN
-    assert all(math.isnan(v) for v in mark_shape(np.zeros(40), 4))
-
-
 def test_motion_jitter_is_the_noise_about_a_periodic_motion():
     n = np.arange(60)
     rng = np.random.default_rng(1)
@@ -386,6 +377,35 @@ def test_motion_jitter_is_the_noise_about_a_periodic_motion():
     assert abs(jitter[0] / 0.05 - 1) < 0.25
     assert abs(jitter[1] / 0.03 - 1) < 0.25
     assert all(math.isnan(v) for v in motion_jitter([noisy[:12], quiet[:12]]))
+
+
+def test_steadier_falls_back_on_the_standard_errors_when_the_motion_is_not_periodic():
+    """Two trackers of the same frames: the centroid (noise 0.03 px) and a plate (0.015 px).
+
+    Both measure the same pixels: the centroid's error is the plate's plus a part of its own
+    (the efficient estimate's error is uncorrelated with the difference). On a smooth
+    periodic motion the jitters tell them apart. A slider that sticks and slips is not one:
+    the motion fit misses by far more, common to both, so the jitters are about equal; the
+    standard errors decide then, if the tracks differ by no more than the centroid's (a
+    plate pulled 0.05 px frame by frame, claiming 0.015, is refused).
+    """
+    n = np.arange(60.0)
+    rng = np.random.default_rng(3)
+    periodic = 300 - 80 * np.cos(0.4 * n)
+    sticking = periodic + np.where(np.sin(0.4 * n) > 0, 0.0, 40 * np.sin(0.4 * n) ** 2)
+    plate_error = rng.normal(0, 0.015, n.size)
+    centroid_error = plate_error + rng.normal(0, math.sqrt(0.03 ** 2 - 0.015 ** 2), n.size)
+    sigmas = [np.full(n.size, 0.03), np.full(n.size, 0.015)]
+    for motion in (periodic, sticking):
+        better, jitters = steadier([motion + centroid_error, motion + plate_error], sigmas, 0.95)
+        assert better, jitters
+        assert (jitters[1] < 0.7 * jitters[0]) == (motion is periodic), jitters
+    pulled = sticking + plate_error + rng.normal(0, 0.05, n.size)
+    better, jitters = steadier([sticking + centroid_error, pulled], sigmas, 0.95)
+    assert not better and jitters[0] > 0.3, jitters
+    # A plate no steadier by its standard errors: the centroid stays.
+    assert not steadier([sticking + centroid_error, sticking + plate_error],
+                        [sigmas[0], np.full(n.size, 0.029)], 0.95)[0]
 
 
 @pytest.mark.parametrize(('shape', 'seed', 'bound'), [('cross', 3, 0.08), ('pair', 3, 0.08)])
@@ -412,20 +432,48 @@ def test_narrow_mark_on_a_plain_plate_gets_the_learned_plate(shape, seed, bound)
     assert ratio < 0.85, ratio  # measured 0.71 (cross), 0.74 (pair)
 
 
-def test_simulator_rectangle_keeps_the_centroid_and_learns_no_plate():
-    """The simulator's plain 20 x 50 px rectangle (the sample bags' mark): exactly the centroid."""
-    video, _ = rig.render_bench(bench.get_scenario('paper'), 3.0)
-    auto = Tracker(video.rois, 1e-6, video.config.fps, video.config.exposure)
-    auto.prime(video.frames[:60])
-    centroid = track(video.frames, video.rois, 1e-6, fps=video.config.fps,
-                     exposure=video.config.exposure, config=TrackerConfig(method='centroid'))
-    rows = [auto.process(frame).marks for frame in video.frames]
-    for name, mark in auto.marks.items():
-        assert mark.plate is None, name
-        # Measured fill 0.84 (a box): the plate is not even learned.
-        assert mark.shape is not None and mark.shape[0] > NARROW_FILL, name
-        x = np.array([r[name].position_px for r in rows])
-        assert np.array_equal(x, centroid.position_px[name], equal_nan=True), name
+def _bound_px(spec, scene, name, n_frames, seed, step=0.05):
+    """Return the RMS over the frames of the Cramer-Rao bound of the mark's position (px).
+
+    Everything but the position known: the derivative of the noiseless frame with respect to
+    the motion's offset (rendered at +-``step``), over the ROI, against the renderer's noise
+    (shot noise, read noise and rounding).
+    """
+    shifted = [render_scene(dataclasses.replace(spec, plates={
+        k: dataclasses.replace(v, origin=v.origin + sign * step)
+        for k, v in spec.plates.items()}), n_frames, seed=seed, keep_expected=True)
+        for sign in (-1.0, 1.0)]
+    x, y, w, h = scene.rois[name]
+    window = np.s_[y:y + h, x:x + w]
+    information = []
+    for n in range(n_frames):
+        slope = (shifted[1].expected[n] - shifted[0].expected[n])[window] / (2 * step)
+        variance = scene.expected[n][window] / spec.gain + spec.read_noise ** 2 + 1 / 12
+        information.append(float((slope * slope / variance).sum()))
+    return float(np.sqrt(np.mean(1.0 / np.array(information))))
+
+
+def test_a_small_square_on_a_plain_plate_is_tracked_near_the_bound():
+    """A 10 x 10 px square, 50 % deep, on a plain plate: the plate's fit, not the centroid.
+
+    The centroid's window weighs the mark's flat middle and the noise beside it like its
+    edges: measured 1.89 / 2.26 times the Cramer-Rao bound (slider / stator). The plate
+    learned on the priming frames is kept (steadier over them) and fits each frame with the
+    exposure's motion kernel: measured 1.13 / 1.20 times the bound, none lost.
+    """
+    spec = SceneSpec(plates=plates(width=10.0, height=10.0, contrast=-85.0, amplitude=60.0,
+                                   frequency=2.0))
+    scene = render_scene(spec, 90, seed=1, keep_expected=True)
+    auto = track(scene.frames, scene.rois, 1e-6, fps=30.0)
+    centroid = track(scene.frames, scene.rois, 1e-6, fps=30.0,
+                     config=TrackerConfig(method='centroid'))
+    for name, truth in scene.truth.items():
+        bound = _bound_px(spec, scene, name, 90, 1)
+        error = auto.position_px[name] - truth
+        assert np.all(np.isfinite(error)), name
+        assert float(np.sqrt(np.mean(error ** 2))) < 1.35 * bound, name
+        theirs = centroid.position_px[name] - truth
+        assert float(np.sqrt(np.nanmean(theirs ** 2))) > 1.6 * bound, name
 
 
 def test_a_textured_plate_with_a_short_stroke():
@@ -461,42 +509,32 @@ def test_standard_errors_scaled_to_the_scatter_of_the_track():
     assert tracker.marks['slider'].learned['sigma_scale'] > 1.1
 
 
-def test_on_a_plain_plate_the_centroid_guards_the_learned_plate(monkeypatch):
-    """The plate's fit reaches further along the plate than the centroid's window.
+def test_on_a_plain_plate_a_ball_over_some_of_the_mark_rows_is_not_reported():
+    """A cross on a plain plate, tracked by its learned plate, a dark ball over its lower rows.
 
-    Something near the mark (an occluder coming) can pull the fit: on a rendered cross with a
-    passing occluder, one clear frame was reported 0.97 px off (stator 0.105 px RMS); with the
-    centroid's verdict and position as a check, it is not reported (0.053 px RMS). Here the
-    plate's result is shifted by hand: a position far from the centroid's is refused, one
-    within a few standard errors is kept, and a centroid's 'partly hidden' is passed on.
+    The plate's fit sees one row-weighted profile, and a ball over some of the mark's rows
+    changes it. As the centroid tracker does, a frame whose row weights depart from the
+    mark's own (learned over the priming frames) is 'mark partly hidden'; the frames after
+    it are searched afresh and refused while the ball is there ('no match'), and the mark is
+    back as soon as it leaves. (With the rows' guard off, the gain guard refuses the first
+    frame instead and one frame under the ball is reported, 0.02 px off.)
     """
     spec = SceneSpec(plates=plates(shape='cross', width=40.0, height=40.0))
-    scene = render_scene(spec, 90, seed=4)
-    tracker = PlateMarkTracker(scene.rois['stator'], TrackerConfig(), 'stator', 0.5)
-    tracker.prime(list(scene.frames[:60]))
-    assert tracker.plate is not None and not tracker.textured  # the plain-plate rule kept it
-    measure_plate = tracker._measure_plate
-    shift = {'px': 0.0}
-
-    def shifted(frame):
-        m = measure_plate(frame)
-        return dataclasses.replace(m, position_px=m.position_px + shift['px'])
-
-    monkeypatch.setattr(tracker, '_measure_plate', shifted)
-    tracker.reset()
-    frames = scene.frames[60:70]
-    good = [tracker.measure(f) for f in frames]
-    assert all(m.valid for m in good)
-    tracker.reset()
-    shift['px'] = 1.0
-    far = [tracker.measure(f) for f in frames]
-    assert not any(m.valid for m in far) and {m.reason for m in far} == {'no match'}
-    tracker.reset()
-    monkeypatch.setattr(tracker._fallback, 'measure', lambda frame: MarkMeasurement(
-        math.nan, 0.2, reason='mark partly hidden'))
-    shift['px'] = 0.0
-    hidden = tracker.measure(frames[0])
-    assert not hidden.valid and hidden.reason == 'mark partly hidden'
+    discs = [('slider', 70, 80, 0.0, 20.0, 6.0, 100.0), ('stator', 70, 80, 0.0, 20.0, 6.0, 100.0)]
+    scene = render_scene(spec, 90, seed=4, discs=discs)
+    tracker = Tracker(scene.rois, 1e-6, 30.0)
+    tracker.prime(scene.frames[:60])
+    assert all(m.plate is not None and not m.textured for m in tracker.marks.values())
+    found = [tracker.process(frame).marks for frame in scene.frames]
+    for name, truth in scene.truth.items():
+        x = np.array([f[name].position_px for f in found])
+        clear = np.r_[0:70, 81:90]
+        assert np.all(np.isfinite(x[clear])), name
+        # Blurs of 20-75 px: measured 0.078 / 0.061 px RMS.
+        assert float(np.sqrt(np.mean((x[clear] - truth[clear]) ** 2))) < 0.15, name
+        assert found[70][name].reason == 'mark partly hidden', name
+        under = x[70:81] - truth[70:81]
+        assert np.all(np.abs(under[np.isfinite(under)]) < 0.3), name
 
 
 def _exposure_mean(t, fraction, omega, amplitude=200.0, centre=250.0):

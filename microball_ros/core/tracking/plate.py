@@ -5,15 +5,17 @@ is core.tracking.priming. Priming decides per ROI whether the plate is textured:
 independent between the even and the odd rows while a texture on the plate is common to both,
 so the correlation of their profiles outside the mark (after a cubic detrend) is about 0 on a
 plain plate and 0.5-1 on a textured one (``texture_score``; a static background the centroid
-tracker learned is divided out first). On a plain plate the tracker *is* the centroid tracker
-(core.tracking.centroid): every frame is measured by it, unchanged, unless the mark has narrow
-parts (a cross, a pair of bars: ``narrow_shape`` of its least smeared priming frames), for
-which the deficit centroid is far from efficient: then the plate is learned as below and kept
-only if, over the priming frames, it reports every frame the centroid does and its jitter about
-the motion (``motion_jitter``: the residual about a smooth periodic fit) is below
-``PLAIN_MARGIN`` times the centroid's; its positions are offset by the mean difference of the
-two tracks there (the centroid is exact on average). A box-shaped mark never has a plate
-learned.
+tracker learned is divided out first). On a plain plate the centroid tracker
+(core.tracking.centroid) tracks the priming frames first. Its window weighs every column in
+it alike, the mark's flat middle and the noise beside it, so its variance is 1.5-3 times the
+bound's for a box and far more for thin strokes (a cross, bars): the plate is learned as below
+and kept only if, over the priming frames, it reports every frame the centroid does and it is
+``steadier`` (its jitter about a smooth periodic motion under ``PLAIN_MARGIN`` times the
+centroid's, or, when the motion is not periodic, its standard errors, the two tracks agreeing
+to the centroid's); its positions are offset by the mean difference of the two tracks there
+(the centroid is exact on average). Kept, it alone measures every frame, and
+a frame whose rows depart from the mark's own (``mark_rows`` of the priming frames, as the
+centroid tracker learns them) is 'mark partly hidden'. Else every frame is the centroid's.
 
 On a textured plate the texture moves with the mark, so near the mark the plate's relative
 deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
@@ -64,7 +66,7 @@ import warnings
 import numpy as np
 
 from microball_ros.core.tracking.background import StaticBackground
-from microball_ros.core.tracking.centroid import CentroidMarkTracker
+from microball_ros.core.tracking.centroid import CentroidMarkTracker, mark_rows
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.gains import MarkGains
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
@@ -77,8 +79,8 @@ from microball_ros.core.tracking.priming import (
     deep_rows,
     first_positions,
     motion_jitter,
-    narrow_shape,
     row_flat_field,
+    steadier,
     texture_score,
 )
 from microball_ros.core.tracking.profile import (
@@ -102,15 +104,9 @@ from microball_ros.core.tracking.smear import (
 ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
-# A plain plate: the plate is tried only for a mark with narrow parts (priming.narrow_shape):
-# a profile filling under NARROW_FILL of its extent (a box 0.85, a blob 0.68, a cross 0.55-0.62,
-# bars 0.45) and a centroid variance over NARROW_GAIN times the efficient one's (a box 2.9, a
-# blob 1.5, a cross 3-4.5, bars 26); kept if its jitter over priming is under PLAIN_MARGIN
-# times the centroid's and it reports every frame the centroid does.
-NARROW_FILL = 0.72
-NARROW_GAIN = 2.0
+# A plain plate's plate is kept if its jitter over priming is under PLAIN_MARGIN times the
+# centroid's and it reports every frame the centroid does.
 PLAIN_MARGIN = 0.95
-PLAIN_AGREE = 4.0  # plate and centroid positions apart by more: not reported
 SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 REACQUIRE_MATCH = 1.4  # after a loss, a poorer fit may be false (a shadow leaving: 2.7 px off)
@@ -148,7 +144,10 @@ class PlateMarkTracker:
         self._refused = False  # a long smear whose plate could not be learned: all NaN
         self._offset = 0.0  # px added to the plate's positions (on a plain plate)
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
-        self.shape: tuple[float, float] | None = None  # plain plate: mark_shape's fill, gain
+        self._rows: slice | None = None  # plain plate: the mark's rows, their weights, the
+        self._band: np.ndarray | None = None  # largest departure of a clear frame's from
+        self._row_tolerance = math.inf  # them (centroid.mark_rows); None: no guard
+        self._row_log: list[np.ndarray] | None = None  # the priming frames' row weights
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
     @property
@@ -193,7 +192,7 @@ class PlateMarkTracker:
         """Learn the polarity, whether the plate is textured, and if so the plate; restart."""
         frames = list(frames)
         self._forget()
-        self.texture, self.shape, self.jitter = 0.0, None, None
+        self.texture, self.jitter = 0.0, None
         self._fallback.prime(frames)
         if self.polarity is None or len(frames) < 12:
             return
@@ -268,37 +267,32 @@ class PlateMarkTracker:
         return np.array([m.position_px - x if m.valid else math.nan for m in found]), found
 
     def _prime_plain(self, regions, frames) -> None:
-        """On a plain plate, learn the plate for a mark with narrow parts if it is better.
+        """On a plain plate, learn the plate and keep it if it tracks better than the centroid.
 
-        The centroid tracks the priming frames; if the mark has narrow parts (``narrow_shape``
-        of its least smeared frames: fill below ``NARROW_FILL``, gain above ``NARROW_GAIN``)
-        the plate is learned and tracks them too, and it is kept only if it reports every
-        frame the centroid does and its jitter about the motion (``motion_jitter``) is below
-        ``PLAIN_MARGIN`` times the centroid's. The centroid is exact on average for any
-        mark and blur: the plate's positions are then offset by the mean difference of the
-        two tracks over these frames (its origin, the mid-point of the outer edges, is
-        hundredths of a pixel off the mark's centre on average).
+        The centroid and the plate track the priming frames; the plate is kept only if it
+        reports every frame the centroid does and is ``steadier`` (``PLAIN_MARGIN``). The
+        centroid is exact on average for any mark and blur: the plate's positions are then
+        offset by the mean difference of the two tracks over these frames (its origin, the
+        mid-point of the outer edges, is hundredths of a pixel off the mark's centre on
+        average). The mark's rows and row weights are learned from the plate's track
+        (``mark_rows``).
         """
-        centroid, found = self._track_priming(frames, self._fallback.measure)
-        polarity = self.polarity
-        if polarity is None:
-            return
-        self.shape = narrow_shape(regions, centroid, np.array([m.extent_px for m in found]),
-                                  polarity, self.config, self.exposure_fraction)
-        if self.shape is None or not (self.shape[0] < NARROW_FILL
-                                      and self.shape[1] > NARROW_GAIN):
-            return
+        centroid, reference = self._track_priming(frames, self._fallback.measure)
         self._learn(regions)
         if self.plate is not None:
             self._relearn(regions, frames)
         if self.plate is None:
             return self._forget()
+        self._row_log = []
         tracked = self._track_priming(frames, self.measure)
+        self._rows, self._band, self._row_tolerance = mark_rows(self._row_log, self.roi[3])
+        self._row_log = None
         plate = tracked[0]
         lost = np.isfinite(centroid) & ~np.isfinite(plate)
-        jitter = motion_jitter([centroid, plate])
-        self.jitter = (jitter[0], jitter[1])
-        if np.any(lost) or not jitter[1] < PLAIN_MARGIN * jitter[0]:
+        better, self.jitter = steadier(
+            [centroid, plate], [np.array([m.sigma_px if m.valid else math.nan for m in found])
+                                for found in (reference, tracked[1])], PLAIN_MARGIN)
+        if np.any(lost) or not better:
             self._forget()
             return
         both = np.isfinite(centroid) & np.isfinite(plate)
@@ -312,6 +306,7 @@ class PlateMarkTracker:
         self._half = self._outer = 8.0
         self._shift, self._rms, self._offset, self._sigma_scale = 0.0, 1.0, 0.0, 1.0
         self._gains.forget_spread()
+        self._rows, self._band, self._row_tolerance = None, None, math.inf
         self._refused = False
         self.reset()
 
@@ -452,29 +447,12 @@ class PlateMarkTracker:
 
     # -- a frame ---------------------------------------------------------------------------
     def measure(self, frame: np.ndarray) -> MarkMeasurement:
-        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
-
-        On a plain plate with a learned plate (a mark with narrow parts) the centroid tracker
-        measures too, and its checks guard the plate's fit, whose window reaches further
-        along the plate: a mark it finds partly hidden, or a plate position more than
-        ``PLAIN_AGREE`` standard errors (and 0.1 px) from its own, is not reported.
-        """
+        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement."""
         if self._refused:
             return self._invalid('long smear on a textured plate not learned')
         if self.plate is None or self.weights is None:
             return self._fallback.measure(frame)
-        if self.texture >= TEXTURE_SCORE:
-            return self._measure_plate(frame)
-        check = self._fallback.measure(frame)
-        found = self._measure_plate(frame)
-        if not check.valid:
-            return MarkMeasurement(math.nan, min(check.quality, found.quality),
-                                   contrast=found.contrast, reason=check.reason)
-        if found.valid and abs(found.position_px - check.position_px) > PLAIN_AGREE * math.hypot(
-                found.sigma_px, check.sigma_px) + 0.1:
-            return MarkMeasurement(math.nan, 0.0, contrast=found.contrast,
-                                   reason='no match')
-        return found
+        return self._measure_plate(frame)
 
     def _measure_plate(self, frame: np.ndarray) -> MarkMeasurement:
         """Measure the mark in one frame with the learned plate (see the module)."""
@@ -525,14 +503,15 @@ class PlateMarkTracker:
                 return self._invalid('too dark')
         size = plate.size
         window, valid, j0 = grid_window(d, start, size, size // 2)
-        fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0)
+        fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0,
+                        best=True)
         tolerance = REACQUIRE_MATCH if lost else cfg.match_tolerance + 0.5
         if fit is None or fit[5] > tolerance * self._rms:
             # A false minimum (short kernels' blur and curvature are hardly separable), or the
             # steps ran out (a turning point): go on from there, restart from short kernels.
             starts = [(start - j0 - plate.center, b, 0.0) for b in RESTART_BLURS]
             for d0, b0, c0 in starts if fit is None else [fit[:3], *starts]:
-                other = plate.fit(window, valid, d0, b0, c0, reach + 8.0)
+                other = plate.fit(window, valid, d0, b0, c0, reach + 8.0, best=True)
                 if other is not None and (fit is None or other[5] < fit[5]):
                     fit = other
         if fit is None:
@@ -548,6 +527,8 @@ class PlateMarkTracker:
             return self._invalid('no match', contrast=peak)
         if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
+        if self._hidden(region, first, last):
+            return self._invalid('mark partly hidden', contrast=peak)
         reference = self._gains.judge(gain)  # core.tracking.gains: None if it jumped
         if reference is None:
             return self._invalid('mark area changed', contrast=peak)
@@ -565,6 +546,28 @@ class PlateMarkTracker:
         return MarkMeasurement(position + self.roi[0] + self._offset, quality,
                                sigma_px=sigma * self._sigma_scale,
                                contrast=peak, extent_px=last - first)
+
+    def _hidden(self, region, first, last) -> bool:
+        """Return True if the rows of the mark (columns first..last) depart from its own.
+
+        A plain plate's guard, as the centroid tracker's: something over some of the mark's
+        rows (a ball, a shadow) changes its depth there; the plate's fit alone, reaching
+        further along the plate than the mark, can be pulled by it. Logs the row weights
+        while priming (``_row_log``).
+        """
+        if self._row_log is None and self._band is None:
+            return False
+        own = row_weights(region, int(first), int(last), int(self.config.pad_px),
+                          self.polarity or 'dark')
+        if self._row_log is not None:
+            if own is not None:
+                self._row_log.append(own)
+            return False
+        if own is None or self._rows is None or self._band is None:
+            return own is None
+        part = own[self._rows]
+        part = part / max(float(part.sum()), 1e-12)
+        return float(np.abs(part - self._band).sum()) > self._row_tolerance
 
     def _search(self, d, prediction, kernel):
         """Return (column, blur, curve): the best match of the smeared plate, or None.

@@ -257,12 +257,14 @@ class PlateModel:
         inner = fine[(np.abs(u - edge) >= 2.0) & (np.abs(u - edge) <= 5.0) & (u > edge)]
         return 0.5 * (float(np.median(outer)) + float(np.median(inner)))
 
-    def fit(self, window, valid, delta, blur, curve, reach, iterations=8):
+    def fit(self, window, valid, delta, blur, curve, reach, iterations=8, best=False):
         """Fit (delta, blur, curve) with offset and gain linear; None if it fails.
 
         Returns (delta, blur, curve, gain, offset, rms, sigma of delta), from the grid
         columns within ``reach`` + half the blur of the start (Gauss-Newton, analytic
-        derivatives of the kernel's spectrum).
+        derivatives of the kernel's spectrum). ``best``: if the steps did not settle and an
+        earlier point fitted better, return that point (a short kernel's blur and curvature
+        are hardly separable: the steps can swing between them and end anywhere).
         """
         span = reach + 0.5 * abs(blur) + 0.25 * abs(curve)
         columns = np.flatnonzero(valid & (np.abs(self.grid - delta) <= span))
@@ -277,7 +279,7 @@ class PlateModel:
         y_centred = y - y_mean
         mik, k_safe = self._frequencies()
         delta, blur, curve = float(delta), abs(float(blur)), float(curve)
-        result = None
+        result = lowest = None
         jacobian = np.empty((5, count))
         jacobian[0] = 1.0
         for _ in range(iterations):
@@ -297,6 +299,8 @@ class PlateModel:
             np.multiply(model[1:], gain, out=jacobian[2:])
             normal = jacobian @ jacobian.T
             result = ((delta, blur, curve), gain, offset, float(residual @ residual), normal)
+            if best and (lowest is None or result[3] < lowest[3]):
+                lowest = result
             damped = normal + 1e-9 * np.diag(np.diag(normal) + 1e-12)
             try:
                 step = np.linalg.solve(damped, jacobian @ residual)
@@ -309,6 +313,9 @@ class PlateModel:
         if result is None or not (math.isfinite(delta) and math.isfinite(blur)
                                   and math.isfinite(curve)):
             return None
+        if lowest is not None and lowest[3] < result[3]:
+            result = lowest
+            delta, blur, curve = result[0]
         _, gain, offset, cost, normal = result
         variance = cost / max(count - 5, 1)
         try:

@@ -3,10 +3,9 @@
 ``texture_score`` / ``plate_is_textured``: whether the plate carries a texture of its own
 (pixel noise is independent between the even and the odd rows, a texture is common to both);
 ``row_flat_field``: a pattern fixed in the image that differs between rows, left by the
-row-weighted profile; ``mark_shape``: whether a mark has narrow parts (a cross, bars), for which
-the deficit centroid is far from efficient; ``motion_jitter``: a track's scatter about a smooth
-periodic motion, to compare two trackers on the same frames; ``narrow_shape``: ``mark_shape``
-of the least smeared priming frames; ``first_positions``: each priming frame's mark from its
+row-weighted profile; ``motion_jitter``: a track's scatter about a smooth periodic motion, and
+``steadier``, which compares two trackers on the same frames by it (or by their standard
+errors when the motion is not periodic); ``first_positions``: each priming frame's mark from its
 dip, before anything is learned; ``deep_rows``: the rows the mark is deep in.
 """
 
@@ -19,10 +18,7 @@ from scipy.optimize import minimize_scalar
 
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.profile import (
-    LIGHT_FLANK,
-    deficit_noise,
     light_level,
-    row_weights,
 )
 from microball_ros.core.tracking.search import locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
@@ -30,8 +26,8 @@ from microball_ros.core.tracking.subpixel import deficit_centroid
 TEXTURE_SCORE = 0.1
 MIN_FLAT_GAIN = 0.5
 HARMONICS = 4
-SHARP_BLUR = 6.0  # narrow_shape: frames smeared less than this (px) show the mark's shape
-SHAPE_FRAMES = 5  # narrow_shape: at most this many of them
+SHAPE_FRAMES = 5  # deep_rows: the least smeared frames it looks at
+MISFIT = 2.0  # steadier: a motion fit missing by more than this many standard errors
 DEEP_ROW = 0.4  # deep_rows: a row whose deepest point is under this of the deepest row's: out
 
 
@@ -105,37 +101,6 @@ def row_flat_field(regions, weights, positions, spans, guard=8.0):
     return flat / (weights @ flat)
 
 
-def mark_shape(deficit: np.ndarray, pad: int, smoothing_px: int = 5,
-               gap: int = 16) -> tuple[float, float]:
-    """Return (fill, gain) of the mark in a deficit profile (a window around it, plate ~ 0).
-
-    ``fill``: the mark's integrated deficit over its peak times its extent, where the deficit
-    smoothed over ``smoothing_px`` exceeds a quarter of its peak (parts ``gap`` apart joined):
-    about 0.85 for a box, less for a mark with thin strokes on a wider part or with gaps.
-    ``gain``: the centroid's variance over the Cramer-Rao bound's for white noise,
-    ``sum (x - c)^2 * sum d'^2 / (sum d)^2`` over the extent and ``pad`` (the noise's share of
-    ``sum d'^2`` removed). (NaN, NaN) without a mark clear of the window's ends.
-    """
-    dip = locate(deficit, 0.0, 0.25, smoothing_px, gap)
-    first, last = dip.lo - pad, dip.hi + pad
-    if not dip.peak > 0 or first < 2 or last > deficit.size - 3:
-        return math.nan, math.nan
-    part = deficit[first:last + 1]
-    area = float(part.sum())
-    if not area > 0:
-        return math.nan, math.nan
-    fill = float(deficit[dip.lo:dip.hi + 1].sum()) / (dip.peak * (dip.hi - dip.lo + 1))
-    keep = np.ones(deficit.size, dtype=bool)
-    keep[max(first - 2, 0):last + 3] = False
-    noise = deficit_noise(deficit, keep)
-    columns = np.arange(part.size)
-    center = float(columns @ part) / area
-    slope = (part[2:] - part[:-2]) / 2.0
-    information = max(float(slope @ slope) - slope.size * noise * noise / 2.0, 0.0)
-    gain = float(((columns - center) ** 2).sum()) * information / (area * area)
-    return fill, gain
-
-
 def motion_jitter(tracks: list[np.ndarray], harmonics: int = HARMONICS) -> list[float]:
     """Return each track's RMS residual (px) about a smooth periodic motion fitted to it.
 
@@ -180,6 +145,33 @@ def motion_jitter(tracks: list[np.ndarray], harmonics: int = HARMONICS) -> list[
     return [math.sqrt(float(r @ r) / dof) for r in (residuals(omega, y) for y in data)]
 
 
+def steadier(tracks: list[np.ndarray], sigmas: list[np.ndarray], margin: float,
+             misfit: float = MISFIT) -> tuple[bool, tuple[float, float]]:
+    """Return whether the second track is steadier than the first, and their jitters.
+
+    ``tracks``: two trackers' positions over the same frames (NaN: none), the first the
+    reference (the centroid); ``sigmas``: their standard errors per frame. Steadier: its
+    ``motion_jitter`` is under ``margin`` times the first's. When the motion is not a
+    smooth periodic one (a slider that sticks and slips, a lag), what the fit misses is
+    common to both and hides their noise: the first's jitter is then over ``misfit`` times
+    its standard error, and the standard errors decide instead (the second's RMS under
+    ``margin`` times the first's), provided the two tracks differ by no more than the
+    first's standard error (RMS, about their mean difference): a second tracker pulled or
+    biased frame by frame would differ by more.
+    """
+    jitter = motion_jitter(tracks)
+    jitters = (jitter[0], jitter[1])
+    if jitter[1] < margin * jitter[0]:
+        return True, jitters
+    both = np.all(np.isfinite(np.array(tracks, dtype=float)), axis=0)
+    rms = [math.sqrt(float(np.mean(np.square(np.asarray(s, dtype=float)[both]))))
+           if np.any(both) else math.nan for s in sigmas]
+    if not jitter[0] > misfit * rms[0]:
+        return False, jitters
+    apart = float(np.std(tracks[0][both] - tracks[1][both]))
+    return bool(rms[1] < margin * rms[0] and apart <= rms[0]), jitters
+
+
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
                       threshold: float = TEXTURE_SCORE) -> bool:
     """Return True if the plate around the mark carries a texture (``texture_score``).
@@ -188,48 +180,6 @@ def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]
     1.5 px) to 0.97: the threshold is between, where a weak texture still beats the centroid.
     """
     return texture_score(regions, marks) >= threshold
-
-
-def narrow_shape(regions: list[np.ndarray], positions: np.ndarray, extents: np.ndarray,
-                 polarity: str, config: TrackerConfig,
-                 exposure_fraction: float) -> tuple[float, float] | None:
-    """Return the median ``mark_shape`` (fill, gain) of the least smeared frames, or None.
-
-    ``positions`` and ``extents``: the mark per frame (ROI columns; NaN: not found). A frame's
-    smear is the motion kernel's length from the neighbouring positions; up to
-    ``SHAPE_FRAMES`` frames smeared less than ``SHARP_BLUR`` px are used, with their
-    row-weighted deficit against the light beside the mark (``light_level``).
-    """
-    f = exposure_fraction
-    before, middle, after = positions[:-2], positions[1:-1], positions[2:]
-    smear = np.abs(after - before) / 2.0 * f + np.abs(after - 2 * middle + before) * f * f / 8
-    smear = np.concatenate([[math.nan], smear, [math.nan]])
-    order = [int(n) for n in np.argsort(smear, kind='stable')
-             if smear[n] <= SHARP_BLUR][:SHAPE_FRAMES]
-    sign = 1.0 if polarity == 'dark' else -1.0
-    shapes = []
-    for n in order:
-        center, extent = positions[n], extents[n]
-        if not math.isfinite(extent):
-            continue
-        weights = row_weights(regions[n], int(center - extent / 2), int(center + extent / 2),
-                              config.pad_px, polarity)
-        if weights is None:
-            continue
-        profile = weights @ regions[n].astype(np.float64)
-        level = light_level(profile, polarity, center, extent + 16.0, flank=LIGHT_FLANK)
-        if level is None:
-            continue
-        lo = max(int(center - extent / 2 - LIGHT_FLANK), 0)
-        hi = int(center + extent / 2 + LIGHT_FLANK) + 1
-        shape = mark_shape(sign * (1.0 - profile[lo:hi] / level[lo:hi]), int(config.pad_px),
-                           int(config.smoothing_px), int(config.merge_gap_px))
-        if math.isfinite(shape[0]) and math.isfinite(shape[1]):
-            shapes.append(shape)
-    if not shapes:
-        return None
-    fill, gain = np.median(np.array(shapes), axis=0)
-    return float(fill), float(gain)
 
 
 def first_positions(regions: list[np.ndarray], polarity: str,
