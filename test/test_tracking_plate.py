@@ -379,15 +379,17 @@ def test_motion_jitter_is_the_noise_about_a_periodic_motion():
     assert all(math.isnan(v) for v in motion_jitter([noisy[:12], quiet[:12]]))
 
 
-def test_steadier_falls_back_on_the_standard_errors_when_the_motion_is_not_periodic():
+def test_steadier_wants_less_jitter_and_tracks_that_agree_as_their_errors_allow():
     """Two trackers of the same frames: the centroid (noise 0.03 px) and a plate (0.015 px).
 
     Both measure the same pixels: the centroid's error is the plate's plus a part of its own
-    (the efficient estimate's error is uncorrelated with the difference). On a smooth
-    periodic motion the jitters tell them apart. A slider that sticks and slips is not one:
-    the motion fit misses by far more, common to both, so the jitters are about equal; the
-    standard errors decide then, if the tracks differ by no more than the centroid's (a
-    plate pulled 0.05 px frame by frame, claiming 0.015, is refused).
+    (the efficient estimate's error is uncorrelated with the difference), so the tracks
+    differ by sqrt(0.03^2 - 0.015^2). On a smooth periodic motion the jitters tell the two
+    apart. A slider that sticks and slips is not one: the motion fit misses by far more,
+    common to both, and the standard errors decide. Refused: a plate pulled 0.05 px frame by
+    frame while claiming 0.015, and one with an error that follows the motion (a bias
+    growing with the blur, 0 to 0.12 px), which the periodic fit takes up: its jitter is still
+    half the centroid's, but the tracks differ by more than their errors allow.
     """
     n = np.arange(60.0)
     rng = np.random.default_rng(3)
@@ -403,6 +405,9 @@ def test_steadier_falls_back_on_the_standard_errors_when_the_motion_is_not_perio
     pulled = sticking + plate_error + rng.normal(0, 0.05, n.size)
     better, jitters = steadier([sticking + centroid_error, pulled], sigmas, 0.95)
     assert not better and jitters[0] > 0.3, jitters
+    biased = periodic + plate_error + 0.12 * np.abs(np.sin(0.4 * n))
+    better, jitters = steadier([periodic + centroid_error, biased], sigmas, 0.95)
+    assert not better and jitters[1] < 0.6 * jitters[0], jitters
     # A plate no steadier by its standard errors: the centroid stays.
     assert not steadier([sticking + centroid_error, sticking + plate_error],
                         [sigmas[0], np.full(n.size, 0.029)], 0.95)[0]
@@ -432,48 +437,56 @@ def test_narrow_mark_on_a_plain_plate_gets_the_learned_plate(shape, seed, bound)
     assert ratio < 0.85, ratio  # measured 0.71 (cross), 0.74 (pair)
 
 
-def _bound_px(spec, scene, name, n_frames, seed, step=0.05):
-    """Return the RMS over the frames of the Cramer-Rao bound of the mark's position (px).
+def _bounds_px(spec, scene, n_frames, seed, step=0.05):
+    """Return per ROI the RMS over the frames of the Cramer-Rao bound of the position (px).
 
     Everything but the position known: the derivative of the noiseless frame with respect to
     the motion's offset (rendered at +-``step``), over the ROI, against the renderer's noise
-    (shot noise, read noise and rounding).
+    (shot noise, read noise and rounding; 16-bit frames are the 8-bit scale times 257).
     """
     shifted = [render_scene(dataclasses.replace(spec, plates={
         k: dataclasses.replace(v, origin=v.origin + sign * step)
         for k, v in spec.plates.items()}), n_frames, seed=seed, keep_expected=True)
         for sign in (-1.0, 1.0)]
-    x, y, w, h = scene.rois[name]
-    window = np.s_[y:y + h, x:x + w]
-    information = []
-    for n in range(n_frames):
-        slope = (shifted[1].expected[n] - shifted[0].expected[n])[window] / (2 * step)
-        variance = scene.expected[n][window] / spec.gain + spec.read_noise ** 2 + 1 / 12
-        information.append(float((slope * slope / variance).sum()))
-    return float(np.sqrt(np.mean(1.0 / np.array(information))))
+    rounding = (1.0 / 257.0 if spec.bits == 16 else 1.0) ** 2 / 12.0
+    bounds = {}
+    for name, (x, y, w, h) in scene.rois.items():
+        window = np.s_[y:y + h, x:x + w]
+        information = []
+        for n in range(n_frames):
+            slope = (shifted[1].expected[n] - shifted[0].expected[n])[window] / (2 * step)
+            variance = scene.expected[n][window] / spec.gain + spec.read_noise ** 2 + rounding
+            information.append(float((slope * slope / variance).sum()))
+        bounds[name] = float(np.sqrt(np.mean(1.0 / np.array(information))))
+    return bounds
 
 
-def test_a_small_square_on_a_plain_plate_is_tracked_near_the_bound():
-    """A 10 x 10 px square, 50 % deep, on a plain plate: the plate's fit, not the centroid.
+@pytest.mark.parametrize(('size', 'contrast', 'bits', 'lost', 'centroid_ratio'),
+                         [(10.0, -85.0, 8, 0, 1.6), (12.0, -8.5, 16, 1, 1.35)])
+def test_a_small_square_on_a_plain_plate_is_tracked_near_the_bound(size, contrast, bits, lost,
+                                                                   centroid_ratio):
+    """A 10 px square 50 % deep (8-bit), a 12 px one 5 % deep (16-bit), on plain plates.
 
     The centroid's window weighs the mark's flat middle and the noise beside it like its
-    edges: measured 1.89 / 2.26 times the Cramer-Rao bound (slider / stator). The plate
-    learned on the priming frames is kept (steadier over them) and fits each frame with the
-    exposure's motion kernel: measured 1.13 / 1.20 times the bound, none lost.
+    edges: measured 1.89 / 2.26 and 1.49 / 1.68 times the Cramer-Rao bound (slider / stator).
+    The plate learned on the priming frames is kept (steadier over them) and fits each frame
+    with the exposure's motion kernel: measured 1.14 / 1.20 and 1.08 / 1.13 times the bound;
+    none lost, and one of 90 at 5 % (its gain 5 standard errors off).
     """
-    spec = SceneSpec(plates=plates(width=10.0, height=10.0, contrast=-85.0, amplitude=60.0,
-                                   frequency=2.0))
+    spec = SceneSpec(plates=plates(width=size, height=size, contrast=contrast, amplitude=60.0,
+                                   frequency=2.0), bits=bits)
     scene = render_scene(spec, 90, seed=1, keep_expected=True)
     auto = track(scene.frames, scene.rois, 1e-6, fps=30.0)
     centroid = track(scene.frames, scene.rois, 1e-6, fps=30.0,
                      config=TrackerConfig(method='centroid'))
+    bounds = _bounds_px(spec, scene, 90, 1)
     for name, truth in scene.truth.items():
-        bound = _bound_px(spec, scene, name, 90, 1)
+        bound = bounds[name]
         error = auto.position_px[name] - truth
-        assert np.all(np.isfinite(error)), name
-        assert float(np.sqrt(np.mean(error ** 2))) < 1.35 * bound, name
+        assert np.count_nonzero(~np.isfinite(error)) <= lost, name
+        assert float(np.sqrt(np.nanmean(error ** 2))) < 1.3 * bound, name
         theirs = centroid.position_px[name] - truth
-        assert float(np.sqrt(np.nanmean(theirs ** 2))) > 1.6 * bound, name
+        assert float(np.sqrt(np.nanmean(theirs ** 2))) > centroid_ratio * bound, name
 
 
 def test_a_textured_plate_with_a_short_stroke():

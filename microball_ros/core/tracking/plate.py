@@ -516,11 +516,13 @@ class PlateMarkTracker:
                     fit = other
         if fit is None:
             return self._invalid('no match')
-        delta, blur, curve, gain, _, rms, sigma = fit
+        delta, blur, curve, gain, _, rms, sigma, sigma_gain = fit
         position = delta + j0 + plate.center
         peak = gain * float(plate.values.max())
         first, last = (position + end for end in path_range(blur, curve, reach))
-        moved = 4.0 + SMEAR_MOVE * blur if (self._motion or self._periodic) else 4.0  # smears
+        # A smear searched without a prediction, or on a known motion, may move further.
+        smeared = self._motion or self._periodic or gated is None
+        moved = 4.0 + SMEAR_MOVE * blur if smeared else 4.0
         if abs(position - start) > moved or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
         if lost and rms > REACQUIRE_MATCH * self._rms:  # after a loss: maybe a false match
@@ -532,7 +534,9 @@ class PlateMarkTracker:
         reference = self._gains.judge(gain)  # core.tracking.gains: None if it jumped
         if reference is None:
             return self._invalid('mark area changed', contrast=peak)
-        q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / cfg.area_tolerance) ** 2)
+        # The gain's own noise widens the tolerance (a faint mark's gain is noisy).
+        tolerance = math.hypot(cfg.area_tolerance, 3.0 * sigma_gain / reference)
+        q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / tolerance) ** 2)
         excess = max(rms / self._rms - cfg.match_tolerance, 0.0)
         q_match = math.exp(-0.5 * (excess / 0.5) ** 2)
         snr = peak * math.sqrt(cfg.smoothing_px) / max(rms, 1e-12)

@@ -260,8 +260,8 @@ class PlateModel:
     def fit(self, window, valid, delta, blur, curve, reach, iterations=8, best=False):
         """Fit (delta, blur, curve) with offset and gain linear; None if it fails.
 
-        Returns (delta, blur, curve, gain, offset, rms, sigma of delta), from the grid
-        columns within ``reach`` + half the blur of the start (Gauss-Newton, analytic
+        Returns (delta, blur, curve, gain, offset, rms, sigma of delta, sigma of gain), from
+        the grid columns within ``reach`` + half the blur of the start (Gauss-Newton, analytic
         derivatives of the kernel's spectrum). ``best``: if the steps did not settle and an
         earlier point fitted better, return that point (a short kernel's blur and curvature
         are hardly separable: the steps can swing between them and end anywhere).
@@ -323,7 +323,8 @@ class PlateModel:
         except np.linalg.LinAlgError:
             return None
         sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
-        return (delta, blur, curve, gain, offset, math.sqrt(variance), sigma)
+        sigma_gain = math.sqrt(max(float(covariance[1, 1]) * variance, 0.0))
+        return (delta, blur, curve, gain, offset, math.sqrt(variance), sigma, sigma_gain)
 
     def fit_many(self, windows, valids, deltas, blurs, curves, reach, iterations=8):
         """Return ``fit`` of several frames (rows of ``windows``, ``valids``), batched.
@@ -417,8 +418,9 @@ class PlateModel:
             except np.linalg.LinAlgError:
                 continue
             sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
+            sigma_gain = math.sqrt(max(float(covariance[1, 1]) * variance, 0.0))
             results[n] = (float(state[0, i]), float(state[1, i]), float(state[2, i]),
-                          float(gain), float(offset), math.sqrt(variance), sigma)
+                          float(gain), float(offset), math.sqrt(variance), sigma, sigma_gain)
         return results
 
     def _frequencies(self) -> tuple[np.ndarray, np.ndarray]:

@@ -28,6 +28,10 @@ MIN_FLAT_GAIN = 0.5
 HARMONICS = 4
 SHAPE_FRAMES = 5  # deep_rows: the least smeared frames it looks at
 MISFIT = 2.0  # steadier: a motion fit missing by more than this many standard errors
+# steadier: the two tracks' difference within AGREE times what their standard errors allow,
+# plus SLACK of the first's variance (measured 0.8-1.2 on plates that track better, 1.4-1.6
+# at most; 2.0-3.1 where the plate tracks worse: a whole-frame exposure, a bright blob).
+AGREE, SLACK = 1.5, 0.1
 DEEP_ROW = 0.4  # deep_rows: a row whose deepest point is under this of the deepest row's: out
 
 
@@ -150,26 +154,35 @@ def steadier(tracks: list[np.ndarray], sigmas: list[np.ndarray], margin: float,
     """Return whether the second track is steadier than the first, and their jitters.
 
     ``tracks``: two trackers' positions over the same frames (NaN: none), the first the
-    reference (the centroid); ``sigmas``: their standard errors per frame. Steadier: its
-    ``motion_jitter`` is under ``margin`` times the first's. When the motion is not a
-    smooth periodic one (a slider that sticks and slips, a lag), what the fit misses is
-    common to both and hides their noise: the first's jitter is then over ``misfit`` times
-    its standard error, and the standard errors decide instead (the second's RMS under
-    ``margin`` times the first's), provided the two tracks differ by no more than the
-    first's standard error (RMS, about their mean difference): a second tracker pulled or
-    biased frame by frame would differ by more.
+    reference (the centroid, unbiased for any blur); ``sigmas``: their standard errors per
+    frame. Steadier: its ``motion_jitter`` is under ``margin`` times the first's or, when
+    the motion is not a smooth periodic one (a slider that sticks and slips, a lag: the
+    first's jitter over ``misfit`` times its standard error, what the fit misses common to
+    both), its standard errors are (RMS). And in either case the two tracks agree as two
+    estimates from the same pixels do when the second is efficient: the variance of their
+    difference is that of the first less that of the second (Hausman), here at most
+    ``AGREE`` squared times it plus ``SLACK`` times the first's. An error of the second
+    that follows the motion (a bias growing with the blur) hides in the jitter, which the
+    periodic fit takes up, but not in the difference: a whole-frame exposure's plate was
+    0.89 times as jittery as the centroid and 1.12 times its error, its tracks apart by
+    twice what their standard errors allow.
     """
     jitter = motion_jitter(tracks)
     jitters = (jitter[0], jitter[1])
-    if jitter[1] < margin * jitter[0]:
-        return True, jitters
     both = np.all(np.isfinite(np.array(tracks, dtype=float)), axis=0)
-    rms = [math.sqrt(float(np.mean(np.square(np.asarray(s, dtype=float)[both]))))
-           if np.any(both) else math.nan for s in sigmas]
-    if not jitter[0] > misfit * rms[0]:
+    if np.count_nonzero(both) < 8:
         return False, jitters
-    apart = float(np.std(tracks[0][both] - tracks[1][both]))
-    return bool(rms[1] < margin * rms[0] and apart <= rms[0]), jitters
+    rms = [math.sqrt(float(np.mean(np.square(np.asarray(s, dtype=float)[both]))))
+           for s in sigmas]
+    if jitter[1] < margin * jitter[0]:
+        better = True
+    elif jitter[0] > misfit * rms[0]:
+        better = rms[1] < margin * rms[0]
+    else:
+        better = False
+    apart = float(np.var(tracks[0][both] - tracks[1][both]))
+    allowed = AGREE ** 2 * max(rms[0] ** 2 - rms[1] ** 2, 0.0) + SLACK * rms[0] ** 2
+    return bool(better and apart <= allowed), jitters
 
 
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
