@@ -144,9 +144,9 @@ class PlateMarkTracker:
         self._refused = False  # a long smear whose plate could not be learned: all NaN
         self._offset = 0.0  # px added to the plate's positions (on a plain plate)
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
-        self._rows: slice | None = None  # plain plate: the mark's rows, their weights, the
-        self._band: np.ndarray | None = None  # largest departure of a clear frame's from
-        self._row_tolerance = math.inf  # them (centroid.mark_rows); None: no guard
+        self._rows: slice | None = None  # plain plate: centroid.mark_rows (None: no guard)
+        self._band: np.ndarray | None = None
+        self._row_tolerance = math.inf
         self._row_log: list[np.ndarray] | None = None  # the priming frames' row weights
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
@@ -450,15 +450,10 @@ class PlateMarkTracker:
         """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement."""
         if self._refused:
             return self._invalid('long smear on a textured plate not learned')
-        if self.plate is None or self.weights is None:
-            return self._fallback.measure(frame)
-        return self._measure_plate(frame)
-
-    def _measure_plate(self, frame: np.ndarray) -> MarkMeasurement:
-        """Measure the mark in one frame with the learned plate (see the module)."""
         plate = self.plate
         if plate is None or self.weights is None:
             return self._fallback.measure(frame)
+        # The learned plate (see the module).
         cfg = self.config
         w = self.roi[2]
         region = self._region(frame)
@@ -520,8 +515,10 @@ class PlateMarkTracker:
         position = delta + j0 + plate.center
         peak = gain * float(plate.values.max())
         first, last = (position + end for end in path_range(blur, curve, reach))
-        # A smear searched without a prediction, or on a known motion, may move further.
-        smeared = self._motion or self._periodic or gated is None
+        # A smear on a known motion may move further from the search's start; so may one
+        # searched without a prediction on a plain plate (nothing else there to match).
+        smeared = self._motion or self._periodic or (gated is None
+                                                     and self.texture < TEXTURE_SCORE)
         moved = 4.0 + SMEAR_MOVE * blur if smeared else 4.0
         if abs(position - start) > moved or not math.isfinite(position):
             return self._invalid('no match', contrast=peak)
@@ -555,9 +552,7 @@ class PlateMarkTracker:
         """Return True if the rows of the mark (columns first..last) depart from its own.
 
         A plain plate's guard, as the centroid tracker's: something over some of the mark's
-        rows (a ball, a shadow) changes its depth there; the plate's fit alone, reaching
-        further along the plate than the mark, can be pulled by it. Logs the row weights
-        while priming (``_row_log``).
+        rows (a ball, a shadow) changes its depth there. Logs them while priming (``_row_log``).
         """
         if self._row_log is None and self._band is None:
             return False
