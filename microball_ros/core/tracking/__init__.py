@@ -32,15 +32,15 @@ Per mark and frame, the centroid tracker (core.tracking.centroid) has one module
 
 The default method 'auto' (core.tracking.plate) measures every frame so, unless priming finds
 better (core.tracking.priming has what it measures): on a plate whose texture moves with the
-mark, and for a mark with narrow parts (a cross, bars) on a plain plate when its track is
-clearly steadier, it learns the plate itself (mark and texture, core.tracking.plate_model,
-by core.tracking.plate_solver: jointly with the static field and each frame's light,
-twice) and fits each frame with the exposure's motion kernel, its standard errors scaled to
-the track's scatter over the priming frames; core.tracking.gains refuses a frame whose mark
-gain jumps (something passing beside the mark), core.tracking.smear starts the plate of a
-textured plate smeared over most of the ROI from a periodic motion fitted to the smears (and
-refuses it when its track cannot be checked), core.tracking.plate_search holds the plate's
-search.
+mark, and on a plain plate when its track is steadier than the centroid's and agrees with it as
+their standard errors allow, it learns the plate itself (mark and texture,
+core.tracking.plate_model, by core.tracking.plate_solver: jointly with the static field and
+each frame's light, twice) and fits each frame with the exposure's motion kernel, its standard
+errors scaled to the track's scatter over the priming frames; core.tracking.gains refuses a
+frame whose mark gain jumps (something passing beside the mark), core.tracking.smear starts the
+plate of a textured plate smeared over most of the ROI from a periodic motion fitted to the
+smears (and refuses it when its track cannot be checked), core.tracking.plate_search holds the
+plate's search.
 
 The polarity is 'auto' by default: the first frame the mark is found in fixes it (dark or
 bright, from the skewness of the profile, else whichever detection stands out more). The

@@ -11,9 +11,9 @@ it alike, the mark's flat middle and the noise beside it, so its variance is 1.5
 bound's for a box and far more for thin strokes (a cross, bars): the plate is learned as below
 and kept only if, over the priming frames, it reports every frame the centroid does and it is
 ``steadier`` (its jitter about a smooth periodic motion under ``PLAIN_MARGIN`` times the
-centroid's, or, when the motion is not periodic, its standard errors, the two tracks agreeing
-to the centroid's); its positions are offset by the mean difference of the two tracks there
-(the centroid is exact on average). Kept, it alone measures every frame, and
+centroid's, or its standard errors when the motion is not periodic, and the two tracks agreeing
+as their standard errors allow); its positions are offset by the mean difference of the two
+tracks there (the centroid is exact on average). Kept, it alone measures every frame, and
 a frame whose rows depart from the mark's own (``mark_rows`` of the priming frames, as the
 centroid tracker learns them) is 'mark partly hidden'. Else every frame is the centroid's.
 
@@ -104,8 +104,8 @@ from microball_ros.core.tracking.smear import (
 ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
-# A plain plate's plate is kept if its jitter over priming is under PLAIN_MARGIN times the
-# centroid's and it reports every frame the centroid does.
+# A plain plate's plate is kept if it reports every frame the centroid does over priming and
+# is priming.steadier than it by this margin.
 PLAIN_MARGIN = 0.95
 SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)

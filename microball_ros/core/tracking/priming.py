@@ -17,9 +17,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from microball_ros.core.tracking.config import TrackerConfig
-from microball_ros.core.tracking.profile import (
-    light_level,
-)
+from microball_ros.core.tracking.profile import light_level
 from microball_ros.core.tracking.search import locate
 from microball_ros.core.tracking.subpixel import deficit_centroid
 
