@@ -108,6 +108,7 @@ RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one
 # is priming.steadier than it by this margin.
 PLAIN_MARGIN = 0.95
 SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
+WHOLE_LEVEL = 0.05  # of D's peak: the whole mark, for the rows' guard of a plain plate
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 REACQUIRE_MATCH = 1.4  # after a loss, a poorer fit may be false (a shadow leaving: 2.7 px off)
 
@@ -133,7 +134,7 @@ class PlateMarkTracker:
         self.static: np.ndarray | None = None
         self.flat: np.ndarray | None = None
         self._background: StaticBackground | None = None
-        self._half = self._outer = 8.0  # px: the mark's half-width, and its reach in D
+        self._half = self._outer = self._whole = 8.0  # px: its half-width, its reach in D
         self._full: PlateModel | None = None
         self._shift, self._rms = 0.0, 1.0  # D's origin in the whole plate; priming's residual
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
@@ -303,7 +304,7 @@ class PlateMarkTracker:
         """Drop a learned plate: every frame is measured by the centroid tracker again."""
         self.plate = self._full = self._motion = self._periodic = None
         self.weights = self.static = self.flat = None
-        self._half = self._outer = 8.0
+        self._half = self._outer = self._whole = 8.0
         self._shift, self._rms, self._offset, self._sigma_scale = 0.0, 1.0, 0.0, 1.0
         self._gains.forget_spread()
         self._rows, self._band, self._row_tolerance = None, None, math.inf
@@ -419,6 +420,9 @@ class PlateMarkTracker:
         lo, hi = dip_extent(local.values, peak, 0.25 * float(local.values[peak]),
                             int(cfg.merge_gap_px))
         self._outer = max(float(c - lo), float(hi - c), reach)
+        # The whole mark, its faint parts too (a cross's long arm): the rows' guard's window.
+        lo, hi = dip_extent(local.values, peak, WHOLE_LEVEL * float(local.values[peak]))
+        self._whole = max(float(c - lo), float(hi - c), self._outer)
         self.static = solver.static
         self._rms = float(np.median(rms)) if len(rms) else 1.0
 
@@ -526,7 +530,7 @@ class PlateMarkTracker:
             return self._invalid('no match', contrast=peak)
         if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
-        if self._hidden(region, first, last):
+        if self._hidden(region, *(position + e for e in path_range(blur, curve, self._whole))):
             return self._invalid('mark partly hidden', contrast=peak)
         reference = self._gains.judge(gain)  # core.tracking.gains: None if it jumped
         if reference is None:
@@ -549,7 +553,7 @@ class PlateMarkTracker:
                                contrast=peak, extent_px=last - first)
 
     def _hidden(self, region, first, last) -> bool:
-        """Return True if the rows of the mark (columns first..last) depart from its own.
+        """Return True if the rows of the whole mark (columns first..last) depart from its own.
 
         A plain plate's guard, as the centroid tracker's: something over some of the mark's
         rows (a ball, a shadow) changes its depth there. Logs them while priming (``_row_log``).
