@@ -33,11 +33,12 @@ averaged over the exposure. The tracker
    gradients), static field and lights (closed form), positions and kernels (fits), until the
    fits move the positions under ``SETTLED`` px RMS (at most ``ROUNDS``). ``D``'s origin is
    then moved to the mark's centre, the mid-point of its outer edges (half-depth crossings,
-   or the centre of symmetry if they are pixels off it: ``PlateModel.mark_center``), which a
-   texture hardly moves (a centroid is pulled by it). All is learned twice: the second time
-   from the positions and kernels the first plate measures, on the ROI divided by a row flat
-   field (``row_flat_field``: a pattern fixed in the image that differs between rows) if
-   there is one; kept if it fits better;
+   or the centre of symmetry if they are pixels off it: ``PlateModel.mark_center``). All is
+   learned twice: the second time from the positions and kernels the first plate measures,
+   on the ROI divided by a row flat field (``row_flat_field``: a pattern fixed in the image
+   that differs between rows) if there is one; kept if it fits better. A texture moves those
+   crossings by 0.1-0.3 px: the positions are then offset to where the mark's edges, row by
+   row, are most nearly mirror-symmetric (core.tracking.plate_rows.edge_offset);
 2. per frame divides the row-weighted profile by the static field and by the frame's light: a
    straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
    profile over the whole learned plate placed at the predicted position, so the texture is not
@@ -57,11 +58,11 @@ averaged over the exposure. The tracker
 
 Long smears (core.tracking.smear: a path over ``LONG_BLUR`` of the ROI) start step 1 from a
 periodic motion fitted to the smears, and search a bank of its kernels; the plate is kept only
-if its priming track passes ``smear_verdict``, else every frame is NaN.
+if its priming track passes ``smear_verdict``, else every frame is NaN. A mark still over the
+priming frames, on a textured plate, is core.tracking.still's.
 """
 
 import math
-import warnings
 
 import numpy as np
 
@@ -71,6 +72,7 @@ from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.gains import MarkGains
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_model import PlateModel, grid_window
+from microball_ros.core.tracking.plate_rows import edge_offset
 from microball_ros.core.tracking.plate_search import match_plate, plate_level, search_kernels
 from microball_ros.core.tracking.plate_solver import PlateSolver, motion_kernels
 from microball_ros.core.tracking.predict import MotionPredictor
@@ -80,6 +82,7 @@ from microball_ros.core.tracking.priming import (
     first_positions,
     motion_jitter,
     row_flat_field,
+    static_field,
     steadier,
     texture_score,
 )
@@ -100,6 +103,7 @@ from microball_ros.core.tracking.smear import (
     smear_start,
     smear_verdict,
 )
+from microball_ros.core.tracking.still import StillMark
 
 ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
@@ -143,7 +147,9 @@ class PlateMarkTracker:
         self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
         self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
         self._refused = False  # a long smear whose plate could not be learned: all NaN
-        self._offset = 0.0  # px added to the plate's positions (on a plain plate)
+        self._offset, self._asymmetry = 0.0, math.nan  # px added to positions; plate_rows
+        self._still: StillMark | None = None  # a still mark on a textured plate
+        self._moved = False  # ... that moved since ``reset``
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
         self._rows: slice | None = None  # plain plate: centroid.mark_rows (None: no guard)
         self._band: np.ndarray | None = None
@@ -172,13 +178,15 @@ class PlateMarkTracker:
         if self.plate is not None:
             learned.update(polarity=self.polarity, half_width=self._half, texture=self.texture,
                            template=self.plate.values.copy(), center=self.plate.center,
-                           offset=self._offset, sigma_scale=self._sigma_scale)
+                           offset=self._offset, sigma_scale=self._sigma_scale,
+                           edge_asymmetry=self._asymmetry)
         return learned
 
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
         self._predictor.reset()
         self._gains.reset()
+        self._moved = False
         polarity = self._fallback.polarity
         self._fallback.reset()
         self._fallback.polarity = polarity
@@ -197,8 +205,7 @@ class PlateMarkTracker:
         self._fallback.prime(frames)
         if self.polarity is None or len(frames) < 12:
             return
-        # A pattern fixed in the image, which the centroid tracker learned, is divided out
-        # first: the plate may carry a texture of its own as well.
+        # A pattern fixed in the image (the centroid tracker's) first: the plate's own next.
         self._background = (self._fallback.background
                             if 'static_background' in self._fallback.learned else None)
         regions = [self._region(frame) for frame in frames]
@@ -219,14 +226,22 @@ class PlateMarkTracker:
                 self._check_smear(frames)
             elif self.plate is not None:
                 self._relearn(regions, frames)
-                self._calibrate(frames)
+                tracked = self._track_priming(frames, self.measure)
+                self._offset, self._asymmetry = edge_offset(
+                    regions if self.flat is None else [r / self.flat for r in regions],
+                    self.weights, tracked[0], tracked[2], self._outer,
+                    1.0 if self.polarity == 'dark' else -1.0)
+                self._calibrate(tracked)
+        if self.plate is None and not self._refused:  # a still mark (core.tracking.still)
+            self._still = StillMark.learn(regions, self._track_priming(
+                frames, self._fallback.measure)[1], x, self.polarity, int(self.config.pad_px))
         self._gains.stop_log()
         self.reset()
 
-    def _calibrate(self, frames, tracked=None) -> None:
+    def _calibrate(self, tracked) -> None:
         """Scale the fit's standard errors to the scatter of the track over the priming frames.
 
-        ``tracked``: the priming frames' (positions, measurements) with this plate, if known.
+        ``tracked``: the priming frames' ``_track_priming`` with this plate.
 
         A fit's standard error counts the pixel noise only; what the learned plate leaves of
         a texture or a pattern fixed in the image scatters the positions too. The track's
@@ -235,8 +250,7 @@ class PlateMarkTracker:
         ``MAX_SIGMA_SCALE``; a larger ratio is the motion fit's failure, not the tracker's).
         """
         self._sigma_scale = 1.0
-        positions, found = (self._track_priming(frames, self.measure) if tracked is None
-                            else tracked)
+        positions, found, _ = tracked
         self._gains.learn_spread()  # from the plate's last pass over the priming frames
         if self.texture >= TEXTURE_SCORE and self._motion is None:  # its kernels, from now
             self._periodic = fit_motion(positions, self.exposure_fraction)
@@ -256,16 +270,21 @@ class PlateMarkTracker:
             self._forget()
             self._refused = True
             return
-        self._calibrate(frames, tracked)
+        self._calibrate(tracked)
 
     def _track_priming(self, frames, measure):
-        """Return the positions (ROI columns, NaN: none) and measurements of ``measure``."""
+        """Return the positions (ROI columns, NaN: none), measurements and kernels (NaN: none)."""
         self.reset()
         x = self.roi[0]
         self._gains.start_log()
-        found = [measure(frame) for frame in frames]
+        found, kernels = [], []
+        for frame in frames:
+            found.append(measure(frame))
+            known = found[-1].valid and self._kernel is not None and measure == self.measure
+            kernels.append(self._kernel if known else (math.nan, math.nan))
         self.reset()
-        return np.array([m.position_px - x if m.valid else math.nan for m in found]), found
+        return (np.array([m.position_px - x if m.valid else math.nan for m in found]), found,
+                np.array(kernels, dtype=float))
 
     def _prime_plain(self, regions, frames) -> None:
         """On a plain plate, learn the plate and keep it if it tracks better than the centroid.
@@ -278,7 +297,7 @@ class PlateMarkTracker:
         average). The mark's rows and row weights are learned from the plate's track
         (``mark_rows``).
         """
-        centroid, reference = self._track_priming(frames, self._fallback.measure)
+        centroid, reference, _ = self._track_priming(frames, self._fallback.measure)
         self._learn(regions)
         if self.plate is not None:
             self._relearn(regions, frames)
@@ -298,14 +317,15 @@ class PlateMarkTracker:
             return
         both = np.isfinite(centroid) & np.isfinite(plate)
         self._offset = float(np.mean(centroid[both] - plate[both]))
-        self._calibrate(frames, tracked)
+        self._calibrate(tracked)
 
     def _forget(self) -> None:
         """Drop a learned plate: every frame is measured by the centroid tracker again."""
         self.plate = self._full = self._motion = self._periodic = None
         self.weights = self.static = self.flat = None
         self._half = self._outer = self._whole = 8.0
-        self._shift, self._rms, self._offset, self._sigma_scale = 0.0, 1.0, 0.0, 1.0
+        self._shift, self._rms, self._sigma_scale = 0.0, 1.0, 1.0
+        self._offset, self._asymmetry, self._still = 0.0, math.nan, None
         self._gains.forget_spread()
         self._rows, self._band, self._row_tolerance = None, None, math.inf
         self._refused = False
@@ -319,19 +339,11 @@ class PlateMarkTracker:
         fit), the positions start within a fraction of a pixel, so the second plate is sharp.
         Kept only if it fits the frames better (median residual).
         """
-        self.reset()
-        x = self.roi[0]
-        positions = np.full(len(frames), np.nan)
-        kernels = np.full((len(frames), 2), np.nan)
-        spans = np.full(len(frames), np.nan)
-        for n, frame in enumerate(frames):
-            m = self.measure(frame)
-            if m.valid and self._kernel is not None:
-                positions[n] = m.position_px - x
-                kernels[n] = self._kernel
-                spans[n] = self._span(self._kernel[0], self._kernel)
+        positions, _, kernels = self._track_priming(frames, self.measure)
+        positions[np.isnan(kernels[:, 0])] = np.nan
         if np.count_nonzero(np.isfinite(positions)) < 8:
             return
+        spans = np.array([self._span(kernel[0], kernel) for kernel in kernels])  # NaN: none
         before = (self.plate, self._full, self._shift, self._outer, self.static, self._rms,
                   self.weights, self._half, self.flat)
         self.flat = row_flat_field(regions, self.weights, positions, spans)
@@ -348,7 +360,7 @@ class PlateMarkTracker:
         ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
         instead of the dip centroids and kernels from neighbouring frames.
         """
-        cfg, w, polarity = self.config, self.roi[2], self.polarity
+        cfg, polarity = self.config, self.polarity
         if polarity is None:
             return
         self.plate = None
@@ -371,28 +383,9 @@ class PlateMarkTracker:
         self.weights = median * deep if deep is not None and (median * deep).sum() > 0 else median
         self.weights /= max(float(self.weights.sum()), 1e-12)
         profiles = np.array([self.weights @ r.astype(np.float64) for r in regions])
-        columns = np.arange(w)
-        outside = np.abs(columns[None, :] - positions[:, None]) > (extents[:, None] / 2 + 8.0)
-        outside &= np.isfinite(positions)[:, None]
-        for _ in range(2):  # the static field, and each frame's light against it
-            masked = np.where(outside, profiles, np.nan)
-            with warnings.catch_warnings():  # columns the mark never left: NaN, no warning
-                warnings.simplefilter('ignore', RuntimeWarning)
-                static = np.nanmedian(masked, axis=0)
-            seen = np.isfinite(static)
-            if np.count_nonzero(seen) < 0.25 * w:
-                return
-            # Columns the mark never left (a short stroke): the field there is interpolated;
-            # the solver learns it with the plate.
-            static = np.interp(columns, columns[seen], static[seen])
-            if static.min() < cfg.min_baseline:
-                return
-            for n in np.flatnonzero(np.isfinite(positions)):
-                level = light_level(profiles[n] / static, polarity, positions[n],
-                                    extents[n] + 16.0, 0)
-                if level is None:
-                    return
-                profiles[n] /= level
+        static = static_field(profiles, positions, extents, polarity, cfg.min_baseline)
+        if static is None:
+            return
         self._half = 0.5 * float(np.nanpercentile(extents, 10) if start is None
                                  or len(start) < 4 else start[3])
         f = self.exposure_fraction
@@ -455,6 +448,11 @@ class PlateMarkTracker:
         if self._refused:
             return self._invalid('long smear on a textured plate not learned')
         plate = self.plate
+        if self._still is not None and not self._moved:
+            found = self._still.measure(self._region(frame), self.roi[0])
+            if found.reason != 'moved':
+                return found
+            self._moved = True  # it moves: the centroid measures it until ``reset``
         if plate is None or self.weights is None:
             return self._fallback.measure(frame)
         # The learned plate (see the module).

@@ -6,7 +6,8 @@
 row-weighted profile; ``motion_jitter``: a track's scatter about a smooth periodic motion, and
 ``steadier``, which compares two trackers on the same frames by it (or by their standard
 errors when the motion is not periodic); ``first_positions``: each priming frame's mark from its
-dip, before anything is learned; ``deep_rows``: the rows the mark is deep in.
+dip, before anything is learned; ``deep_rows``: the rows the mark is deep in; ``static_field``:
+the field fixed in the image under the priming profiles, and each frame's light.
 """
 
 import math
@@ -270,3 +271,39 @@ def deep_rows(regions: list[np.ndarray], positions: np.ndarray, extents: np.ndar
     mask = np.zeros(deep.size, dtype=bool)
     mask[top:bottom + 1] = True
     return mask
+
+
+def static_field(profiles: np.ndarray, positions: np.ndarray, extents: np.ndarray,
+                 polarity: str, min_baseline: float) -> np.ndarray | None:
+    """Return the static field of the priming profiles; divide each by its light, in place.
+
+    ``profiles``: frames x columns (row-weighted); ``positions``, ``extents``: each frame's
+    mark (NaN: none), whose columns (and 8 px beside) are left out. The field is the median
+    over the frames at each column, and each frame's light (``light_level``) is fitted against
+    it, twice. Columns the mark never left (a short stroke) are interpolated: the plate
+    solver learns the field there with the plate. None if under a quarter of the columns are
+    ever clear, the field falls under ``min_baseline`` or a frame's light cannot be fitted.
+    """
+    w = profiles.shape[1]
+    columns = np.arange(w)
+    outside = np.abs(columns[None, :] - positions[:, None]) > (extents[:, None] / 2 + 8.0)
+    outside &= np.isfinite(positions)[:, None]
+    static = None
+    for _ in range(2):  # the static field, and each frame's light against it
+        masked = np.where(outside, profiles, np.nan)
+        with warnings.catch_warnings():  # columns the mark never left: NaN, no warning
+            warnings.simplefilter('ignore', RuntimeWarning)
+            static = np.nanmedian(masked, axis=0)
+        seen = np.isfinite(static)
+        if np.count_nonzero(seen) < 0.25 * w:
+            return None
+        static = np.interp(columns, columns[seen], static[seen])
+        if static.min() < min_baseline:
+            return None
+        for n in np.flatnonzero(np.isfinite(positions)):
+            level = light_level(profiles[n] / static, polarity, positions[n],
+                                extents[n] + 16.0, 0)
+            if level is None:
+                return None
+            profiles[n] /= level
+    return static

@@ -1,0 +1,163 @@
+"""The learned plate row by row, and the mark's centre on a textured plate from its edges.
+
+On a textured plate the mark is the plate's texture darkened (or lit) over the mark's shape,
+so the plate the tracker learns (core.tracking.plate: one profile along x, the rows weighted
+by the mark's depth) holds the mark and the texture together, and where in it the mark's
+centre lies is a matter of definition. The mid-point of the half-depth crossings of that
+profile moves with the texture at the crossings: 0.1-0.3 px on a speckle of 5-8 % against a
+mark 25-30 % deep. The edges of the mark are the strongest gradients there; the texture's are
+weaker and do not line up from row to row. So the centre is taken where the edges' energy,
+row by row, is most nearly mirror-symmetric (``edge_center``), on each row's own plate
+(``row_plates``: the frames of the priming pass, at the positions and motion kernels the
+tracker measured, deconvolved row by row). On noiseless textured marks (the second blind
+set's plates, 40 textures each) that is 0.04-0.10 px RMS off the shape's centre, where the
+profile's crossings are 0.10-0.19 px and the mirror symmetry of the deficit itself
+0.10-0.55 px (a coarse texture's slow part is far from symmetric).
+
+A texture whose own edges are as strong as the mark's (fully developed speckle, 40 % deep
+around a mark 60 % deep) makes the edge energy far from symmetric; there the row-averaged
+profile, which averages the texture away before it looks for edges, is the better definition.
+``edge_offset`` moves the centre by the whole of the edges' verdict when its asymmetry is
+under ``ASYMMETRY_LOW``, by none of it over ``ASYMMETRY_HIGH``, and by a share in between.
+
+A mark that never moves (core.tracking.still) is put at its edges the same way: ``row_plates``
+then divides each row by the plate beside the mark, interpolated under it.
+"""
+
+import math
+import warnings
+
+import numpy as np
+
+from microball_ros.core.tracking.plate_model import UPSAMPLE, fft_size
+from microball_ros.core.tracking.template import kernel_spectrum, tukey
+
+REGULARISATION = 1e-3  # of the largest kernel power: the rows' deconvolution (PlateModel's)
+LIGHT_DEGREE = 2  # each frame's light per row: a polynomial of x fitted beside the mark
+STEP = 1.0 / UPSAMPLE  # edge_center's search grid, px
+ROW_MARGIN = 3  # rows learned beyond the mark's deep rows (its blurred top and bottom edges)
+ASYMMETRY_LOW, ASYMMETRY_HIGH = 0.3, 0.6  # edge_offset: the edges trusted fully / not at all
+MAX_MOVE = 1.0  # px: a verdict further from the profile's centre is not a texture's pull
+
+
+def edge_offset(regions, weights, positions, kernels, extent: float, sign: float,
+                most: float = MAX_MOVE) -> tuple[float, float]:
+    """Return (offset, asymmetry): how far to move the mark's centre, by its edges (px).
+
+    ``weights``: the tracker's row weights (the mark's rows are those above 0); the rest as
+    ``row_plates``, with the positions the tracker reports. (0, NaN) if the edges could not
+    be measured; the offset is 0 too if they put the centre over ``most`` px away (a mark
+    that is not mirror-symmetric).
+    """
+    deep = np.flatnonzero(np.asarray(weights) > 0)
+    if deep.size == 0:
+        return 0.0, math.nan
+    rows = np.arange(max(int(deep[0]) - ROW_MARGIN, 0),
+                     min(int(deep[-1]) + ROW_MARGIN + 1, len(weights)))
+    learned = row_plates(regions, rows, positions, kernels, extent, sign)
+    if learned is None:
+        return 0.0, math.nan
+    plates, origin = learned
+    center, asymmetry = edge_center(plates, origin, extent + 3.0, most + 1.0)
+    if not abs(center) <= most:
+        return 0.0, asymmetry
+    trust = (ASYMMETRY_HIGH - asymmetry) / (ASYMMETRY_HIGH - ASYMMETRY_LOW)
+    return center * min(max(trust, 0.0), 1.0), asymmetry
+
+
+def row_plates(regions, rows, positions, kernels, extent: float,
+               sign: float) -> tuple[np.ndarray, int] | None:
+    """Return (plates, origin): each row's relative deficit in plate coordinates.
+
+    ``regions``: the ROI per frame; ``rows``: the ROI rows to learn; ``positions``: the
+    mark's column per frame (NaN: not measured), which becomes the origin; ``kernels``:
+    (blur, curvature) per frame; ``extent``: the mark's half-width (px; the frame's columns
+    within it and its smear are left out of the light); ``sign``: 1 for a dark mark, -1 for
+    a bright one. A pattern fixed in the image (its median over the frames at each pixel,
+    the mark's columns left out) and each frame's light (a polynomial of x per row, fitted
+    outside the mark) are divided out; then every row's deficit is deconvolved by the
+    frames' motion kernels (least squares over the frames, as ``PlateModel``). None if
+    fewer than 8 frames were measured.
+    """
+    used = [n for n, p in enumerate(positions) if math.isfinite(p)
+            and np.all(np.isfinite(kernels[n]))]
+    if len(used) < 8:
+        return None
+    stack = np.array([regions[n][rows].astype(np.float64) for n in used])
+    count, height, width = stack.shape
+    columns = np.arange(width)
+    spans = np.array([extent + 0.5 * abs(kernels[n][0]) + 0.25 * abs(kernels[n][1]) + 4.0
+                      for n in used])
+    centers = np.array([positions[n] for n in used])
+    outside = np.abs(columns[None, :] - centers[:, None]) > spans[:, None]
+    light = np.ones((count, height, width))
+    basis = np.vander(np.linspace(-1.0, 1.0, width), LIGHT_DEGREE + 1)
+    for _ in range(2):  # the fixed pattern, and each frame's light against it
+        masked = np.where(outside[:, None, :], stack / light, np.nan)
+        with warnings.catch_warnings():  # columns the mark never left: NaN, no warning
+            warnings.simplefilter('ignore', RuntimeWarning)
+            static = np.nanmedian(masked, axis=0)
+        seen = np.isfinite(static)
+        if not np.all(seen.any(axis=1)):
+            return None
+        for r in range(height):  # columns the mark never left: interpolated
+            static[r] = np.interp(columns, columns[seen[r]], static[r][seen[r]])
+        for i in range(count):
+            keep = outside[i]
+            if np.count_nonzero(keep) <= 2 * (LIGHT_DEGREE + 1):
+                return None
+            ratio = stack[i][:, keep] / static[:, keep]
+            coef = np.linalg.lstsq(basis[keep], ratio.T, rcond=None)[0]
+            light[i] = (basis @ coef).T
+    reach = float(spans.max()) + 16.0
+    size = fft_size(int(math.ceil(2.0 * reach + 32)))
+    origin = size // 2
+    k = 2.0 * np.pi * np.fft.rfftfreq(size)
+    numerator = np.zeros((height, k.size), complex)
+    power = np.zeros(k.size)
+    for i, n in enumerate(used):
+        deficit = sign * (1.0 - stack[i] / (static * light[i]))
+        j0 = int(round(centers[i])) - origin
+        index = np.arange(j0, j0 + size)
+        valid = (index >= 0) & (index < width)
+        window = np.zeros((height, size))
+        window[:, valid] = deficit[:, index[valid]]
+        delta = centers[i] - j0 - origin
+        window *= tukey(size, origin + delta, spans[i], 8.0) * valid
+        spectrum = kernel_spectrum(k, *kernels[n]) * np.exp(-1j * k * delta)
+        numerator += np.conj(spectrum) * np.fft.rfft(window, axis=1)
+        power += np.abs(spectrum) ** 2
+    plates = np.fft.irfft(numerator / (power + REGULARISATION * power.max()), size, axis=1)
+    return plates * tukey(size, origin, reach, 8.0), origin
+
+
+def edge_center(plates: np.ndarray, origin: int, reach: float,
+                move: float = 2.0) -> tuple[float, float]:
+    """Return (centre, asymmetry): where the rows' edge energy is most mirror-symmetric.
+
+    ``plates`` (rows x grid, origin column ``origin``, from ``row_plates``) are interpolated
+    to 1/``UPSAMPLE`` px; each row's edge energy is its squared slope along x; the centre
+    ``c`` (px from the origin, within ``move``) minimises the summed squared differences of
+    the energy at ``c + v`` and ``c - v``, ``|v| <= reach``, refined by a parabola. The
+    asymmetry is that minimum over the energy's own sum of squares there (0: a mirror image;
+    a mark that is not symmetric along x scores high). NaN if there is no edge.
+    """
+    size = plates.shape[1]
+    fine = np.fft.irfft(np.fft.rfft(plates, axis=1), size * UPSAMPLE, axis=1) * UPSAMPLE
+    energy = np.gradient(fine, STEP, axis=1) ** 2
+    middle = origin * UPSAMPLE
+    v = np.arange(1, int(round(reach * UPSAMPLE)) + 1)
+    shifts = np.arange(-int(round(move * UPSAMPLE)), int(round(move * UPSAMPLE)) + 1)
+    if middle + shifts[0] - v[-1] < 0 or middle + shifts[-1] + v[-1] >= size * UPSAMPLE:
+        return math.nan, math.nan
+    scores = np.array([float(((energy[:, middle + s + v] - energy[:, middle + s - v]) ** 2).sum())
+                       for s in shifts])
+    best = int(np.argmin(scores))
+    total = float((energy[:, middle + shifts[best] - v[-1]:middle + shifts[best] + v[-1] + 1]
+                   ** 2).sum())
+    if not total > 0 or best in (0, shifts.size - 1):
+        return math.nan, math.nan
+    below, at, above = scores[best - 1:best + 2]
+    curvature = below - 2.0 * at + above
+    step = 0.5 * (below - above) / curvature if curvature > 0 else 0.0
+    return float((shifts[best] + step) * STEP), float(at / total)

@@ -1,0 +1,111 @@
+"""A mark that does not move over the priming frames (a stuck slider), on a textured plate.
+
+A mark and its plate that never move are one pattern fixed in the image: nothing tells the
+mark from the texture but its shape. The deficit centroid (core.tracking.centroid) then takes
+texture dips beside the mark into it, some frames and not others: on a 6 % texture of 3 px
+grain it jumps between two positions 0.7 px apart and is 0.4-1 px off on average (the second
+blind set's t15: 0.40 px). ``StillMark`` instead
+
+1. puts the mark's centre where its edges are most nearly mirror-symmetric, row by row, in
+   the priming frames (core.tracking.plate_rows.edge_offset; the plate beside the mark,
+   interpolated under it, divided out);
+2. measures each frame's shift from there by registering the row-weighted profile over a
+   fixed window against the priming frames' mean profile (a gain, an offset and the shift,
+   least squares linearised about no shift), so no dip beside the mark joins it.
+
+A frame is not reported if the profile no longer matches (``MATCH`` times the priming
+residual: something over the mark) or the mark moved over ``REACH`` px (it is no longer
+still: the centroid tracker measures it from then on). Only for a plate with a texture
+(``TEXTURE`` of its level beside the mark): on a plain plate the centroid is exact, and the
+edges of a still mark err by the interpolation of its pixels (up to 0.006 px under 0.8 px
+optics, 0.05 px under 0.5 px).
+"""
+
+import math
+
+import numpy as np
+
+from microball_ros.core.tracking.plate_rows import edge_offset
+from microball_ros.core.tracking.profile import row_weights
+from microball_ros.core.tracking.results import MarkMeasurement
+
+STILL = 1.0  # px: the centroid's priming positions all within this: the mark is still
+TEXTURE = 0.02  # RMS beside the mark about a parabola along each row, of its level
+MOVE = 3.0  # px: the edges may move the centroid's centre this far (it joins texture dips)
+REACH = 2.0  # px: a frame's shift beyond this: the mark moves, no longer still
+MATCH = 3.0  # a frame's residual over this many times the priming median: not reported
+FLANK = 8  # px of the window beside the mark
+
+
+class StillMark:
+    """A still mark's centre (by its edges) and its per-frame shift (see the module)."""
+
+    def __init__(self, weights, lo, center, reference, residual, extent, polarity):
+        """Keep what ``learn`` found: rows' weights, window start, centre (ROI px), ..."""
+        self.weights, self.lo, self.center = weights, int(lo), float(center)
+        self.reference = reference
+        self.slope = np.gradient(reference)
+        self.residual, self.extent, self.polarity = float(residual), float(extent), polarity
+
+    @classmethod
+    def learn(cls, regions, found, x, polarity: str, pad: int):
+        """Return a StillMark for a still mark on a textured plate, else None.
+
+        ``found``: the centroid's measurements of the ROIs ``regions`` (image columns, the
+        ROI starting at column ``x``): at least 8, all within ``STILL`` px.
+        """
+        positions = np.array([m.position_px - x if m.valid else math.nan for m in found])
+        seen = positions[np.isfinite(positions)]
+        if seen.size < 8 or not float(seen.max() - seen.min()) < STILL:
+            return None
+        extent = 0.5 * float(np.median([m.extent_px for m in found if m.valid]))
+        start = float(np.median(seen))
+        mean = np.mean(regions, axis=0)
+        width = mean.shape[1]
+        weights = row_weights(mean, int(start - extent) - 2, int(start + extent) + 3, pad,
+                              polarity)
+        lo, hi = max(int(start - extent) - FLANK, 0), min(int(start + extent) + FLANK + 1, width)
+        columns = np.arange(width)
+        beside = np.abs(columns - start) > extent + 4.0
+        if weights is None or not extent > 0 or np.count_nonzero(beside) < 12 or hi - lo < 8:
+            return None
+        rows = mean[weights > 0][:, beside]
+        fit = np.polynomial.polynomial.polyfit(columns[beside], rows.T, 2)
+        trend = np.polynomial.polynomial.polyval(columns[beside], fit)
+        if not float(np.sqrt(np.mean((rows - trend) ** 2))) > TEXTURE * float(rows.mean()):
+            return None
+        offset, asymmetry = edge_offset(regions, weights, np.full(len(regions), start),
+                                        np.zeros((len(regions), 2)), extent,
+                                        1.0 if polarity == 'dark' else -1.0, MOVE)
+        if not math.isfinite(asymmetry):
+            return None
+        reference = weights @ mean[:, lo:hi]
+        still = cls(weights, lo, start + offset, reference, 1.0, extent, polarity)
+        residuals = [still._fit(region)[3] for region in regions]
+        still.residual = float(np.median(residuals))
+        return still if still.residual > 0 else None
+
+    def _fit(self, region):
+        """Return (shift px, its sigma, gain, residual RMS) of one ROI's windowed profile."""
+        profile = self.weights @ region[:, self.lo:self.lo + self.reference.size].astype(
+            np.float64)
+        design = np.column_stack([self.reference, np.ones(self.reference.size), -self.slope])
+        coefficients, *_ = np.linalg.lstsq(design, profile, rcond=None)
+        gain, _, moved = (float(v) for v in coefficients)
+        residual = profile - design @ coefficients
+        dof = max(self.reference.size - 3, 1)
+        rms = math.sqrt(float(residual @ residual) / dof)
+        inverse = np.linalg.inv(design.T @ design)
+        shift = moved / gain if gain > 0 else math.nan
+        sigma = rms * math.sqrt(float(inverse[2, 2])) / gain if gain > 0 else math.nan
+        return shift, sigma, gain, rms
+
+    def measure(self, region, x) -> MarkMeasurement:
+        """Measure one ROI (``x``: its first image column); ``reason`` 'moved' if it moved."""
+        shift, sigma, _, rms = self._fit(region)
+        if not abs(shift) <= REACH:
+            return MarkMeasurement(math.nan, 0.0, reason='moved')
+        if rms > MATCH * self.residual:
+            return MarkMeasurement(math.nan, 0.0, reason='mark partly hidden')
+        return MarkMeasurement(x + self.center + shift, 1.0, sigma_px=sigma,
+                               extent_px=2.0 * self.extent)
