@@ -11,9 +11,11 @@ from microball_ros.core.tracking.plate_model import PlateModel
 from microball_ros.core.tracking.plate_rows import (
     ASYMMETRY_HIGH,
     ASYMMETRY_LOW,
+    SHARP,
     edge_center,
     edge_offset,
     row_plates,
+    sharpness,
 )
 from microball_ros.core.tracking.template import kernel_spectrum
 
@@ -99,6 +101,33 @@ def test_edges_of_a_mark_that_is_not_mirror_symmetric_are_not_trusted():
     deficit, _ = textured_mark(None, 48.0, texture=0.0, shape=bars)
     center, asymmetry = edge_center(deficit, 48, 10.0)
     assert math.isnan(center) or asymmetry > ASYMMETRY_HIGH
+
+
+def test_a_blob_has_no_edges_to_go_by():
+    # A Gaussian blob's slopes are broad: a texture shifts their balance (0.2-0.4 px on a 5 %
+    # texture, the first set's bright blob rendered on its textured plate), so it keeps the
+    # profile's crossings. Marks with edges, narrow strokes too, are sharper.
+    rng = np.random.default_rng(8)
+
+    def rows_sharpness(shape, texture):
+        deficit, _ = textured_mark(rng, 48.0, texture=texture, grain=3.0, shape=shape)
+        weights = np.clip(deficit[:, 36:61].mean(axis=1), 0, None)
+        return sharpness(deficit, weights, 48, 12.0)
+
+    def blob(dx, dy):
+        return 0.6 * np.exp(-(dx ** 2 + dy ** 2) / 50.0)
+
+    def cross(dx, dy):
+        return 0.45 * (((np.abs(dx) <= 10) & (np.abs(dy) <= 2))
+                       | ((np.abs(dy) <= 10) & (np.abs(dx) <= 2)))
+
+    def ring(dx, dy):
+        return 0.6 * ((dx ** 2 + dy ** 2 <= 100) & (dx ** 2 + dy ** 2 >= 36))
+
+    for texture in (0.0, 0.05):
+        assert rows_sharpness(blob, texture) < SHARP
+        for shape in (cross, ring, None):
+            assert rows_sharpness(shape, texture) > SHARP
 
 
 def smeared_frames(plate, positions, kernels, width, static, lights):

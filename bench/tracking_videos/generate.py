@@ -145,6 +145,10 @@ CASES = [
          exposure_fraction=1.0),
     Case('speckle_full', 'the rectangle on fully developed speckle, exposure the whole frame '
          'period (1/30 s)', category='textured', plate='speckle', exposure_fraction=1.0),
+    Case('textured_blob', 'a bright Gaussian blob (sigma 5 px) on the moving texture of the '
+         'textured case', category='bright', mark='blob', polarity='bright', plate='textured'),
+    Case('textured_fps15', 'the textured case at 15 fps (exposure half the period)',
+         category='textured', plate='textured', fps=15.0),
 ]
 QUICK = ('baseline', 'bright_blob', 'textured', 'total_occlusion', 'exposure_full')
 

@@ -40,7 +40,9 @@ errors scaled to the track's scatter over the priming frames; core.tracking.gain
 frame whose mark gain jumps (something passing beside the mark), core.tracking.smear starts the
 plate of a textured plate smeared over most of the ROI from a periodic motion fitted to the
 smears (and refuses it when its track cannot be checked), core.tracking.plate_search holds the
-plate's search.
+plate's search. On a textured plate the mark's centre is where its edges are most nearly
+mirror-symmetric, row by row (core.tracking.plate_rows); a mark still over the priming frames
+on a textured plate is registered against them (core.tracking.still).
 
 The polarity is 'auto' by default: the first frame the mark is found in fixes it (dark or
 bright, from the skewness of the profile, else whichever detection stands out more). The
