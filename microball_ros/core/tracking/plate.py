@@ -103,7 +103,7 @@ from microball_ros.core.tracking.smear import (
     smear_start,
     smear_verdict,
 )
-from microball_ros.core.tracking.still import StillMark
+from microball_ros.core.tracking.still import StillMark, is_still
 
 ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
@@ -216,7 +216,12 @@ class PlateMarkTracker:
         if sample is None:
             return
         self.texture = texture_score(sample, marks)
-        if self.texture < TEXTURE_SCORE:
+        # A still mark (a stuck slider) learns no plate: the centroid's, or core.tracking.still's
+        found = self._track_priming(frames, self._fallback.measure)[1]
+        if is_still(found, x):
+            self._still = StillMark.learn(regions, found, x, self.polarity,
+                                          int(self.config.pad_px))
+        elif self.texture < TEXTURE_SCORE:
             self._prime_plain(regions, frames)  # calibrates a plate it keeps
         else:
             start = smear_start(regions, self.polarity, self.exposure_fraction)
@@ -232,9 +237,6 @@ class PlateMarkTracker:
                     self.weights, tracked[0], tracked[2], self._outer,
                     1.0 if self.polarity == 'dark' else -1.0)
                 self._calibrate(tracked)
-        if self.plate is None and not self._refused:  # a still mark (core.tracking.still)
-            self._still = StillMark.learn(regions, self._track_priming(
-                frames, self._fallback.measure)[1], x, self.polarity, int(self.config.pad_px))
         self._gains.stop_log()
         self.reset()
 

@@ -50,7 +50,8 @@ def edge_offset(regions, weights, positions, kernels, extent: float, sign: float
     ``weights``: the tracker's row weights (the mark's rows are those above 0); the rest as
     ``row_plates``, with the positions the tracker reports. (0, NaN) if the edges could not
     be measured; the offset is 0 too if they put the centre over ``most`` px away (a mark
-    that is not mirror-symmetric).
+    that is not mirror-symmetric). Over ``MAX_MOVE`` px away, the edges are looked for
+    about the deficit's own centre of symmetry (``deficit_center``).
     """
     deep = np.flatnonzero(np.asarray(weights) > 0)
     if deep.size == 0:
@@ -61,7 +62,10 @@ def edge_offset(regions, weights, positions, kernels, extent: float, sign: float
     if learned is None:
         return 0.0, math.nan
     plates, origin = learned
-    center, asymmetry = edge_center(plates, origin, extent + 3.0, most + 1.0)
+    around = 0.0 if most <= MAX_MOVE else deficit_center(plates, origin, extent + 3.0, most)
+    if not math.isfinite(around):
+        return 0.0, math.nan
+    center, asymmetry = edge_center(plates, origin, extent + 3.0, MAX_MOVE + 1.0, around)
     if not abs(center) <= most or sharpness(plates, np.asarray(weights)[rows], origin,
                                             extent) < SHARP:
         return 0.0, asymmetry
@@ -152,33 +156,64 @@ def row_plates(regions, rows, positions, kernels, extent: float,
     return plates * tukey(size, origin, reach, 8.0), origin
 
 
-def edge_center(plates: np.ndarray, origin: int, reach: float,
-                move: float = 2.0) -> tuple[float, float]:
+def edge_center(plates: np.ndarray, origin: int, reach: float, move: float = 2.0,
+                around: float = 0.0) -> tuple[float, float]:
     """Return (centre, asymmetry): where the rows' edge energy is most mirror-symmetric.
 
     ``plates`` (rows x grid, origin column ``origin``, from ``row_plates``) are interpolated
     to 1/``UPSAMPLE`` px; each row's edge energy is its squared slope along x; the centre
-    ``c`` (px from the origin, within ``move``) minimises the summed squared differences of
-    the energy at ``c + v`` and ``c - v``, ``|v| <= reach``, refined by a parabola. The
-    asymmetry is that minimum over the energy's own sum of squares there (0: a mirror image;
-    a mark that is not symmetric along x scores high). NaN if there is no edge.
+    ``c`` (px from the origin, within ``move`` of ``around``) minimises the summed squared
+    differences of the energy at ``c + v`` and ``c - v``, ``|v| <= reach``, refined by a
+    parabola. The asymmetry is that minimum over the energy's own sum of squares there (0: a
+    mirror image; a mark that is not symmetric along x scores high). NaN if there is no edge.
     """
     size = plates.shape[1]
     fine = np.fft.irfft(np.fft.rfft(plates, axis=1), size * UPSAMPLE, axis=1) * UPSAMPLE
     energy = np.gradient(fine, STEP, axis=1) ** 2
-    middle = origin * UPSAMPLE
+    middle = origin * UPSAMPLE + int(round(around * UPSAMPLE))
+    found = _mirror(energy, middle, reach, move)
+    if found is None:
+        return math.nan, math.nan
+    center, at, best = found
+    total = float((energy[:, best - int(round(reach * UPSAMPLE)):
+                          best + int(round(reach * UPSAMPLE)) + 1] ** 2).sum())
+    if not total > 0:
+        return math.nan, math.nan
+    return center + (middle - origin * UPSAMPLE) * STEP, at / total
+
+
+def deficit_center(plates: np.ndarray, origin: int, reach: float, move: float) -> float:
+    """Return where the rows' deficit itself is most mirror-symmetric (px from the origin).
+
+    A coarse centre for ``edge_center`` to start from when the mark may be pixels away: the
+    deficit is symmetric about the mark's centre only, its edge energy about each lone edge
+    too (a window holding one edge of a wide mark is a mirror image). A texture's slow part
+    moves it by tenths of a pixel. NaN if there is none within ``move``.
+    """
+    size = plates.shape[1]
+    fine = np.fft.irfft(np.fft.rfft(plates, axis=1), size * UPSAMPLE, axis=1) * UPSAMPLE
+    found = _mirror(fine, origin * UPSAMPLE, reach, move)
+    return math.nan if found is None else found[0]
+
+
+def _mirror(values, middle, reach, move):
+    """Return (centre px from ``middle``, score, its fine index) of ``values``' mirror symmetry.
+
+    ``values``: rows x fine columns (1/``UPSAMPLE`` px); the centre within ``move`` px of
+    the fine column ``middle`` minimising the squared differences of ``values`` at ``c + v``
+    and ``c - v``, ``1/UPSAMPLE <= v <= reach``, refined by a parabola. None at the search's
+    edge or out of the grid.
+    """
     v = np.arange(1, int(round(reach * UPSAMPLE)) + 1)
     shifts = np.arange(-int(round(move * UPSAMPLE)), int(round(move * UPSAMPLE)) + 1)
-    if middle + shifts[0] - v[-1] < 0 or middle + shifts[-1] + v[-1] >= size * UPSAMPLE:
-        return math.nan, math.nan
-    scores = np.array([float(((energy[:, middle + s + v] - energy[:, middle + s - v]) ** 2).sum())
+    if middle + shifts[0] - v[-1] < 0 or middle + shifts[-1] + v[-1] >= values.shape[1]:
+        return None
+    scores = np.array([float(((values[:, middle + s + v] - values[:, middle + s - v]) ** 2).sum())
                        for s in shifts])
     best = int(np.argmin(scores))
-    total = float((energy[:, middle + shifts[best] - v[-1]:middle + shifts[best] + v[-1] + 1]
-                   ** 2).sum())
-    if not total > 0 or best in (0, shifts.size - 1):
-        return math.nan, math.nan
+    if best in (0, shifts.size - 1):
+        return None
     below, at, above = scores[best - 1:best + 2]
     curvature = below - 2.0 * at + above
     step = 0.5 * (below - above) / curvature if curvature > 0 else 0.0
-    return float((shifts[best] + step) * STEP), float(at / total)
+    return float((shifts[best] + step) * STEP), float(at), int(middle + shifts[best])
