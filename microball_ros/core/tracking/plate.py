@@ -59,7 +59,7 @@ averaged over the exposure. The tracker
 Long smears (core.tracking.smear: a path over ``LONG_BLUR`` of the ROI) start step 1 from a
 periodic motion fitted to the smears, and search a bank of its kernels; the plate is kept only
 if its priming track passes ``smear_verdict``, else every frame is NaN. A mark still over the
-priming frames, on a textured plate, is core.tracking.still's.
+priming frames learns no plate: the centroid measures it, or core.tracking.still on a texture.
 """
 
 import math
@@ -217,12 +217,12 @@ class PlateMarkTracker:
             return
         self.texture = texture_score(sample, marks)
         # A still mark (a stuck slider) learns no plate: the centroid's, or core.tracking.still's
-        found = self._track_priming(frames, self._fallback.measure)[1]
-        if is_still(found, x):
-            self._still = StillMark.learn(regions, found, x, self.polarity,
+        centroid = self._track_priming(frames, self._fallback.measure)
+        if is_still(centroid[1], x):
+            self._still = StillMark.learn(regions, centroid[1], x, self.polarity,
                                           int(self.config.pad_px))
         elif self.texture < TEXTURE_SCORE:
-            self._prime_plain(regions, frames)  # calibrates a plate it keeps
+            self._prime_plain(regions, frames, centroid)  # calibrates a plate it keeps
         else:
             start = smear_start(regions, self.polarity, self.exposure_fraction)
             self._motion = None if start is None else start[4]  # a long smear (smear.py)
@@ -288,18 +288,18 @@ class PlateMarkTracker:
         return (np.array([m.position_px - x if m.valid else math.nan for m in found]), found,
                 np.array(kernels, dtype=float))
 
-    def _prime_plain(self, regions, frames) -> None:
+    def _prime_plain(self, regions, frames, tracked) -> None:
         """On a plain plate, learn the plate and keep it if it tracks better than the centroid.
 
-        The centroid and the plate track the priming frames; the plate is kept only if it
-        reports every frame the centroid does and is ``steadier`` (``PLAIN_MARGIN``). The
-        centroid is exact on average for any mark and blur: the plate's positions are then
-        offset by the mean difference of the two tracks over these frames (its origin, the
-        mid-point of the outer edges, is hundredths of a pixel off the mark's centre on
-        average). The mark's rows and row weights are learned from the plate's track
-        (``mark_rows``).
+        ``tracked``: the centroid's ``_track_priming``. The plate tracks the priming frames
+        too; it is kept only if it reports every frame the centroid does and is ``steadier``
+        (``PLAIN_MARGIN``). The centroid is exact on average for any mark and blur: the
+        plate's positions are then offset by the mean difference of the two tracks (its
+        origin, the mid-point of the outer edges, is hundredths of a pixel off the mark's
+        centre on average). The mark's rows and row weights are learned from the plate's
+        track (``mark_rows``).
         """
-        centroid, reference, _ = self._track_priming(frames, self._fallback.measure)
+        centroid, reference, _ = tracked
         self._learn(regions)
         if self.plate is not None:
             self._relearn(regions, frames)

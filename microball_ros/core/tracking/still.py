@@ -58,13 +58,21 @@ def is_still(found, x) -> bool:
 class StillMark:
     """A still mark's centre (by its edges) and its per-frame shift (see the module)."""
 
-    def __init__(self, weights, lo, center, reference, residual, extent, polarity):
-        """Keep what ``learn`` found: rows' weights, window start, centre (ROI px), ..."""
+    def __init__(self, weights, lo, center, reference, extent):
+        """Keep what ``learn`` found (see there).
+
+        ``weights``: the rows'; ``lo``: the window's first column; ``reference``: the mean
+        profile there; ``center``, ``extent``: the mark's centre (ROI px) and half-extent.
+        """
         self.weights, self.lo, self.center = weights, int(lo), float(center)
-        self.reference = reference
-        self.slope = np.gradient(reference)
-        self.tilt = np.linspace(-1.0, 1.0, reference.size)  # a gradient of the light
-        self.residual, self.extent, self.polarity = float(residual), float(extent), polarity
+        self.size, self.extent = reference.size, float(extent)
+        tilt = np.linspace(-1.0, 1.0, reference.size)  # a gradient of the light
+        # Each profile ~ gain * reference * (1 + tilt) + offset - gain * shift * its slope.
+        self.design = np.column_stack([reference, tilt * reference, np.ones(reference.size),
+                                       -np.gradient(reference)])
+        self.inverse = np.linalg.pinv(self.design)
+        self.variance = float(np.linalg.inv(self.design.T @ self.design)[3, 3])
+        self.residual = 1.0  # the priming frames' median residual RMS (``learn``)
 
     @classmethod
     def learn(cls, regions, found, x, polarity: str, pad: int):
@@ -101,27 +109,20 @@ class StillMark:
                                         max(MOVE, extent))
         if not math.isfinite(asymmetry):
             return None
-        reference = weights @ mean[:, lo:hi]
-        still = cls(weights, lo, start + offset, reference, 1.0, extent, polarity)
-        residuals = [still._fit(region)[3] for region in regions]
-        still.residual = float(np.median(residuals))
+        still = cls(weights, lo, start + offset, weights @ mean[:, lo:hi], extent)
+        still.residual = float(np.median([still._fit(region)[3] for region in regions]))
         return still if still.residual > 0 else None
 
     def _fit(self, region):
         """Return (shift px, its sigma, gain, residual RMS) of one ROI's windowed profile."""
-        profile = self.weights @ region[:, self.lo:self.lo + self.reference.size].astype(
-            np.float64)
-        design = np.column_stack([self.reference, self.tilt * self.reference,
-                                  np.ones(self.reference.size), -self.slope])
-        coefficients, *_ = np.linalg.lstsq(design, profile, rcond=None)
+        profile = self.weights @ region[:, self.lo:self.lo + self.size].astype(np.float64)
+        coefficients = self.inverse @ profile
         gain, moved = float(coefficients[0]), float(coefficients[3])
-        residual = profile - design @ coefficients
-        dof = max(self.reference.size - 4, 1)
-        rms = math.sqrt(float(residual @ residual) / dof)
-        inverse = np.linalg.inv(design.T @ design)
-        shift = moved / gain if gain > 0 else math.nan
-        sigma = rms * math.sqrt(float(inverse[3, 3])) / gain if gain > 0 else math.nan
-        return shift, sigma, gain, rms
+        residual = profile - self.design @ coefficients
+        rms = math.sqrt(float(residual @ residual) / max(self.size - 4, 1))
+        if not gain > 0:
+            return math.nan, math.nan, gain, rms
+        return moved / gain, rms * math.sqrt(self.variance) / gain, gain, rms
 
     def measure(self, region, x) -> MarkMeasurement:
         """Measure one ROI (``x``: its first image column); ``reason`` 'moved' if it moved."""
