@@ -3,6 +3,7 @@
 import os
 import subprocess
 import sys
+import tempfile
 
 import pytest
 
@@ -28,6 +29,21 @@ def test_two_claims_never_get_the_same_domain_and_a_held_one_is_refused():
     again.release()
     with pytest.raises(IsolationError, match='outside'):
         claim_domain(250)
+
+
+def test_a_held_domain_is_refused_whatever_the_temp_folder(tmp_path, monkeypatch):
+    # The locks were in the temp folder: a run with another TMPDIR (or a test that points
+    # tempfile elsewhere) took a domain another run held; two test runs at once mixed that way.
+    first = claim_domain()
+    try:
+        monkeypatch.setattr(tempfile, 'tempdir', str(tmp_path))
+        with pytest.raises(IsolationError, match='in use by another microball run'):
+            claim_domain(first.domain_id)
+        second = claim_domain()
+        assert second.domain_id != first.domain_id
+        second.release()
+    finally:
+        first.release()
 
 
 def test_foreign_check_catches_extra_publishers_and_sequences_going_backwards():

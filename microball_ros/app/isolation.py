@@ -1,8 +1,10 @@
 """Never mix rigs: a ROS domain of one's own, and the checks that catch a foreign publisher.
 
 Every ``microball experiment`` (and every test session) claims a ROS domain ID that no other
-microball run on this machine holds: a lock file per ID in the temp directory, held with
-``flock`` for the life of the run, so a crashed run frees its ID at once. Discovery is kept to
+microball run on this machine holds: a lock file per ID in ``LOCK_DIR`` (machine-wide, as a
+ROS domain is: not the temp directory, which ``TMPDIR`` or a test can point elsewhere; two
+test runs at once each ran an experiment on the same domain that way), held with ``flock``
+for the life of the run, so a crashed run frees its ID at once. Discovery is kept to
 this machine (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless the user chose otherwise.
 Another rig on the network that joins the same domain anyway (a fixed ID, another machine,
 another tool) is caught by ``ForeignPublisherCheck``: more publishers on a topic than the run
@@ -18,6 +20,7 @@ from microball_ros.core.errors import MicroballError
 
 # Domain IDs 1..101 are usable with Fast DDS's default ports on Linux; 0 is everybody's default.
 DOMAIN_IDS = range(1, 102)
+LOCK_DIR = '/tmp'  # the domain locks' folder, one for the machine (the temp folder if absent)
 
 
 class IsolationError(MicroballError):
@@ -46,11 +49,15 @@ class DomainClaim:
 
 
 def _lock_path(domain_id):
-    return os.path.join(tempfile.gettempdir(), f'microball-ros-domain-{domain_id}.lock')
+    folder = LOCK_DIR if os.path.isdir(LOCK_DIR) else tempfile.gettempdir()
+    return os.path.join(folder, f'microball-ros-domain-{domain_id}.lock')
 
 
 def _try_lock(domain_id):
-    handle = open(_lock_path(domain_id), 'w')
+    try:
+        handle = open(_lock_path(domain_id), 'a')
+    except PermissionError:  # another user's lock file: their run's, or was
+        return None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
