@@ -20,7 +20,7 @@ profile, which averages the texture away before it looks for edges, is the bette
 ``edge_offset`` moves the centre by the whole of the edges' verdict when its asymmetry is
 under ``ASYMMETRY_LOW``, by none of it over ``ASYMMETRY_HIGH``, and by a share in between.
 A mark without edges (a Gaussian blob: its slopes are broad and a texture's slopes shift
-their balance, 0.2-0.4 px on a 5 % texture) keeps the crossings too (``sharpness``).
+their balance, 0.17-0.30 px on a 5 % texture) keeps the crossings too (``sharpness``).
 
 A mark that never moves (core.tracking.still) is put at its edges the same way: ``row_plates``
 then divides each row by the plate beside the mark, interpolated under it.
