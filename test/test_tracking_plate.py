@@ -309,7 +309,7 @@ def test_bars_under_a_texture_fixed_in_the_image(monkeypatch):
 def _assert_tracked(scene, rms, largest, bias=None):
     """Assert every frame of both marks reported, within ``rms`` and ``largest`` px of truth.
 
-    With ``bias``: the mean error within ``bias`` and the scatter about it under ``rms``.
+    With ``bias``: the mean error within ``bias``, and ``rms`` and ``largest`` about it.
     """
     result = track(scene.frames, scene.rois, 1e-6, fps=30.0)
     for name, truth in scene.truth.items():

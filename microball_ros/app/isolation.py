@@ -56,7 +56,7 @@ def _lock_path(domain_id):
 def _try_lock(domain_id):
     try:
         handle = open(_lock_path(domain_id), 'a')
-    except PermissionError:  # another user's lock file: their run's, or was
+    except PermissionError:  # another user's lock file (their run holds it, or held it)
         return None
     try:
         fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
