@@ -167,9 +167,7 @@ def edge_center(plates: np.ndarray, origin: int, reach: float, move: float = 2.0
     parabola. The asymmetry is that minimum over the energy's own sum of squares there (0: a
     mirror image; a mark that is not symmetric along x scores high). NaN if there is no edge.
     """
-    size = plates.shape[1]
-    fine = np.fft.irfft(np.fft.rfft(plates, axis=1), size * UPSAMPLE, axis=1) * UPSAMPLE
-    energy = np.gradient(fine, STEP, axis=1) ** 2
+    energy = np.gradient(_upsampled(plates), STEP, axis=1) ** 2
     middle = origin * UPSAMPLE + int(round(around * UPSAMPLE))
     found = _mirror(energy, middle, reach, move)
     if found is None:
@@ -190,10 +188,14 @@ def deficit_center(plates: np.ndarray, origin: int, reach: float, move: float) -
     too (a window holding one edge of a wide mark is a mirror image). A texture's slow part
     moves it by tenths of a pixel. NaN if there is none within ``move``.
     """
-    size = plates.shape[1]
-    fine = np.fft.irfft(np.fft.rfft(plates, axis=1), size * UPSAMPLE, axis=1) * UPSAMPLE
-    found = _mirror(fine, origin * UPSAMPLE, reach, move)
+    found = _mirror(_upsampled(plates), origin * UPSAMPLE, reach, move)
     return math.nan if found is None else found[0]
+
+
+def _upsampled(plates: np.ndarray) -> np.ndarray:
+    """Return ``plates`` (rows x grid) interpolated to 1/``UPSAMPLE`` px (band-limited)."""
+    size = plates.shape[1]
+    return np.fft.irfft(np.fft.rfft(plates, axis=1), size * UPSAMPLE, axis=1) * UPSAMPLE
 
 
 def _mirror(values, middle, reach, move):

@@ -50,9 +50,14 @@ def is_still(found, x) -> bool:
     ``found``: its measurements (image columns; the ROI starts at column ``x``): at least 8,
     80 % of them within ``STILL`` px.
     """
-    positions = np.array([m.position_px - x if m.valid else math.nan for m in found])
-    seen = positions[np.isfinite(positions)]
+    seen = _columns(found, x)
+    seen = seen[np.isfinite(seen)]
     return seen.size >= 8 and float(np.subtract(*np.percentile(seen, [90, 10]))) < STILL
+
+
+def _columns(found, x) -> np.ndarray:
+    """Return the ROI columns of the measurements ``found`` (NaN: none; ROI at column ``x``)."""
+    return np.array([m.position_px - x if m.valid else math.nan for m in found])
 
 
 class StillMark:
@@ -83,8 +88,8 @@ class StillMark:
         centroid's half-extent of the centroid's median: the centroid of a dip joined to
         texture dips can be pixels off.
         """
-        positions = np.array([m.position_px - x if m.valid else math.nan for m in found])
-        seen = positions[np.isfinite(positions)]
+        seen = _columns(found, x)
+        seen = seen[np.isfinite(seen)]
         if seen.size < 8:
             return None
         extent = 0.5 * float(np.median([m.extent_px for m in found if m.valid]))
