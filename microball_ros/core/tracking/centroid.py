@@ -35,6 +35,7 @@ from microball_ros.core.tracking.profile import (
     deficit_noise,
     plate_row_weights,
     polarity_of,
+    polarity_of_pixels,
     relative_deficit,
     row_weights,
     smooth,
@@ -290,13 +291,15 @@ class CentroidMarkTracker:
     def measure(self, frame: np.ndarray) -> MarkMeasurement:
         """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
 
-        Before the polarity is known ('auto'), both are tried and the better one is kept.
+        Before the polarity is known ('auto') it is guessed from the column profile, else
+        from the ROI's pixels; when neither is clear, both are tried and the better is kept.
         """
         if self.polarity is not None:
             return self._measure(frame, self.polarity)
         x, y, w, h = self.roi
         if frame.ndim == 2 and x + w <= frame.shape[1] and y + h <= frame.shape[0]:
-            guess = polarity_of(column_profile(frame[y:y + h, x:x + w]))
+            region = frame[y:y + h, x:x + w]
+            guess = polarity_of(column_profile(region)) or polarity_of_pixels(region)
             if guess is not None:
                 measurement = self._measure(frame, guess)
                 if measurement.valid:

@@ -218,27 +218,32 @@ class PlateMarkTracker:
         self.texture = texture_score(sample, marks)
         # A still mark (a stuck slider) learns no plate: the centroid's, or core.tracking.still's
         centroid = self._track_priming(frames, self._fallback.measure)
-        if is_still(centroid[1], x):
-            self._still = StillMark.learn(regions, centroid[1], x, self.polarity,
-                                          int(self.config.pad_px))
-        elif self.texture < TEXTURE_SCORE:
-            self._prime_plain(regions, frames, centroid)  # calibrates a plate it keeps
-        else:
-            start = smear_start(regions, self.polarity, self.exposure_fraction)
-            self._motion = None if start is None else start[4]  # a long smear (smear.py)
-            self._learn(regions, start)
-            if self._motion is not None:
-                self._check_smear(frames)
-            elif self.plate is not None:
-                self._relearn(regions, frames)
-                tracked = self._track_priming(frames, self.measure)
-                self._offset, self._asymmetry = edge_offset(
-                    regions if self.flat is None else [r / self.flat for r in regions],
-                    self.weights, tracked[0], tracked[2], self._outer,
-                    1.0 if self.polarity == 'dark' else -1.0)
-                self._calibrate(tracked)
+        still = is_still(centroid[1], x)
+        self._still = StillMark.learn([roi_region(frame, self.roi, self.name) for frame in frames],
+                                      self.polarity, int(self.config.pad_px), still)
+        if self._still is None and not still:
+            if self.texture < TEXTURE_SCORE:
+                self._prime_plain(regions, frames, centroid)  # calibrates a plate it keeps
+            else:
+                self._prime_textured(regions, frames, self.polarity)
         self._gains.stop_log()
         self.reset()
+
+    def _prime_textured(self, regions, frames, polarity: str) -> None:
+        """On a textured plate, learn the plate (a long smear's, or relearned) and calibrate."""
+        start = smear_start(regions, polarity, self.exposure_fraction)
+        self._motion = None if start is None else start[4]  # a long smear (smear.py)
+        self._learn(regions, start)
+        if self._motion is not None:
+            self._check_smear(frames)
+        elif self.plate is not None:
+            self._relearn(regions, frames)
+            tracked = self._track_priming(frames, self.measure)
+            self._offset, self._asymmetry = edge_offset(
+                regions if self.flat is None else [r / self.flat for r in regions],
+                self.weights, tracked[0], tracked[2], self._outer,
+                1.0 if polarity == 'dark' else -1.0)
+            self._calibrate(tracked)
 
     def _calibrate(self, tracked) -> None:
         """Scale the fit's standard errors to the scatter of the track over the priming frames.
@@ -451,7 +456,8 @@ class PlateMarkTracker:
             return self._invalid('long smear on a textured plate not learned')
         plate = self.plate
         if self._still is not None and not self._moved:
-            found = self._still.measure(self._region(frame), self.roi[0])
+            found = self._still.measure(roi_region(frame, self.roi, self.name),
+                                        self.roi[0])
             if found.reason != 'moved':
                 return found
             self._moved = True  # it moves: the centroid measures it until ``reset``

@@ -104,6 +104,28 @@ def polarity_of(profile: np.ndarray, min_skew: float = 0.5) -> str | None:
     return 'dark' if skew < 0 else 'bright'
 
 
+def polarity_of_pixels(region: np.ndarray, min_skew: float = 0.5) -> str | None:
+    """Return 'dark' or 'bright' from the ROI's pixels, or None if unclear (``polarity_of``).
+
+    The skewness of the pixels' departure from a quadratic surface fitted to them all. Where
+    the column profile is unclear, because the mark holds a few of the ROI's rows and a
+    texture the rest, the mark's pixels still stand out of the plate's; elsewhere the
+    profile, averaging the rows' noise away, is the surer (a faint mark, fine speckle).
+    """
+    height, width = region.shape
+    v, u = np.mgrid[-1.0:1.0:height * 1j, -1.0:1.0:width * 1j]
+    design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1).reshape(-1, 6)
+    values = region.ravel().astype(np.float64)
+    residual = values - design @ np.linalg.lstsq(design, values, rcond=None)[0]
+    spread = float(np.std(residual))
+    if spread <= 0:
+        return None
+    skew = float(np.mean(residual ** 3)) / spread ** 3
+    if abs(skew) < min_skew:
+        return None
+    return 'dark' if skew < 0 else 'bright'
+
+
 def relative_deficit(profile: np.ndarray, baseline: np.ndarray, polarity: str) -> np.ndarray:
     """Return the mark's relative deficit: ``1 - profile / baseline`` for dark marks."""
     if polarity == 'dark':
