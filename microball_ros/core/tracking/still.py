@@ -19,13 +19,14 @@ blind set's t15: 0.40 px); on a coarse one (grain 7.5 px) by pixels. ``StillMark
 A frame is not reported if the profile no longer matches (``MATCH`` times the priming
 residual: something over the mark) or the mark moved over ``REACH`` px (it is no longer
 still: the centroid tracker measures it from then on). Still: the centroid's priming
-positions stay within ``STILL`` px (``is_still``), or every priming frame registers on the
-mean within ``STATIC`` of the mark's depth and ``REACH`` / 2 px (a centroid jumping between
-texture dips cannot tell). Then no plate is learned (nothing moves to tell it from the field
-fixed in the image; a textured plate's smear search took the mark's dip for a long smear and
-refused every frame). Only for a plate with a texture (``TEXTURE`` of its level beside the
-mark): on a plain plate the centroid is exact, and the edges of a still mark err by the
-interpolation of its pixels (up to 0.006 px under 0.8 px optics, 0.05 px under 0.5 px).
+positions stay within ``STILL`` px (``is_still``), or the priming frames register on the
+mean within ``STATIC`` of the mark's depth and ``REACH`` / 2 px and show the mark where the
+mean does (``found_there``; a centroid jumping between texture dips cannot tell). Then no
+plate is learned (nothing moves to tell it from the field fixed in the image; a textured
+plate's smear search took the mark's dip for a long smear and refused every frame). Only
+for a plate with a texture (``TEXTURE`` of its level beside the mark): on a plain plate the
+centroid is exact, and the edges of a still mark err by the interpolation of its pixels (up
+to 0.006 px under 0.8 px optics, 0.05 px under 0.5 px).
 Measured on still marks (boxes, discs, crosses, bar pairs, bright discs and rectangles) on
 textures of 3-12 % and grain 2-8 px: before step 1, 6 of 70 erred by 1.6-6.1 px or were
 lost in some or all frames; now none, mean errors within 0.12 px (a bright disc on an 8 %
@@ -50,6 +51,7 @@ FLANK = 8  # px of the window beside the mark
 HALF = 0.5  # find_mark: the mark is where the deficit exceeds this share of its peak
 PART = 0.8  # find_mark: a separate part this deep on the mark's rows belongs to it
 STATIC = 0.1  # a priming frame's residual RMS, of the mark's depth in the window: still
+AGREE = 0.8  # found_there: the share of frames in which the mark must be found where it was
 
 
 def is_still(found, x) -> bool:
@@ -87,7 +89,8 @@ def find_mark(mean: np.ndarray, polarity: str) -> tuple[float, float] | None:
     for _ in range(3):
         if np.count_nonzero(keep) < 4 * design.shape[1]:
             return None
-        light = design @ np.linalg.lstsq(design[keep], values[keep], rcond=None)[0]
+        kept = design[keep]
+        light = design @ np.linalg.solve(kept.T @ kept, kept.T @ values[keep])
         if not np.all(light > 0):
             return None
         deficit = uniform_filter((sign * (1.0 - values / light)).reshape(height, width), 3,
@@ -108,6 +111,20 @@ def find_mark(mean: np.ndarray, polarity: str) -> tuple[float, float] | None:
             chosen |= inside
     columns = np.flatnonzero(chosen.any(axis=0))
     return 0.5 * float(columns[0] + columns[-1]), 0.5 * float(columns[-1] - columns[0] + 1)
+
+
+def found_there(regions, polarity: str, center: float, extent: float) -> bool:
+    """Return True if ``find_mark`` puts the mark within ``extent`` px of ``center``.
+
+    In ``AGREE`` of the frames ``regions``, one by one.
+
+    A window fixed in the image holds still features that ``find_mark`` can take for a
+    mark in the frames' mean, while the mark itself moves (its smear in the mean is
+    shallow): frame by frame, the moving mark is the deepest.
+    """
+    found = [find_mark(np.asarray(region, dtype=np.float64), polarity) for region in regions]
+    near = [f is not None and abs(f[0] - center) <= extent for f in found]
+    return float(np.mean(near)) >= AGREE
 
 
 class StillMark:
@@ -133,11 +150,10 @@ class StillMark:
     def learn(cls, regions, polarity: str, pad: int, still: bool):
         """Return a StillMark for a still mark on a textured plate, else None.
 
-        The mark is found in the priming frames' mean ROI (``find_mark``), not where the
-        centroid put it: the centroid of a dip joined to texture dips can be pixels off, or
-        jump between frames. Still: ``still`` (the centroid's ``is_still``), or every priming
-        frame registers on the mean within ``STATIC`` of the mark's depth and ``REACH`` / 2
-        px (a centroid that jumps between texture dips cannot tell).
+        ``regions``: the priming frames' ROIs as they are. The mark is found in their mean
+        (``find_mark``), not where the centroid put it: the centroid of a dip joined to
+        texture dips can be pixels off, or jump between frames. Still: ``still`` (the
+        centroid's ``is_still``), or as the module says.
         """
         mean = np.mean(regions, axis=0)
         found = find_mark(mean, polarity)
@@ -162,7 +178,8 @@ class StillMark:
         fits = np.array([registered._fit(region) for region in regions])
         if not still and not (
                 float(np.percentile(np.abs(fits[:, 0]), 90)) <= 0.5 * REACH
-                and float(np.median(fits[:, 3])) < STATIC * float(np.ptp(reference))):
+                and float(np.median(fits[:, 3])) < STATIC * float(np.ptp(reference))
+                and found_there(regions, polarity, start, extent)):
             return None
         offset, asymmetry = edge_offset(regions, weights, np.full(len(regions), start),
                                         np.zeros((len(regions), 2)), extent,
