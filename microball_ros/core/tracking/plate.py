@@ -94,6 +94,7 @@ from microball_ros.core.tracking.profile import (
 )
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import dip_extent
+from microball_ros.core.tracking.small import SmallMotion, moves_little
 from microball_ros.core.tracking.smear import (
     PeriodicMotion,
     fit_motion,
@@ -148,7 +149,8 @@ class PlateMarkTracker:
         self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
         self._refused = False  # a long smear whose plate could not be learned: all NaN
         self._offset, self._asymmetry = 0.0, math.nan  # px added to positions; plate_rows
-        self._still: StillMark | None = None  # a still mark on a textured plate
+        # A still mark, or one moving less than its width, on a textured plate
+        self._still: StillMark | SmallMotion | None = None
         self._moved = False  # ... that moved since ``reset``
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
         self._rows: slice | None = None  # plain plate: centroid.mark_rows (None: no guard)
@@ -219,9 +221,13 @@ class PlateMarkTracker:
         # A still mark (a stuck slider) learns no plate: the centroid's, or core.tracking.still's
         centroid = self._track_priming(frames, self._fallback.measure)
         still = is_still(centroid[1], x)
-        self._still = StillMark.learn([roi_region(frame, self.roi, self.name) for frame in frames],
-                                      self.polarity, int(self.config.pad_px), still)
-        if self._still is None and not still:
+        raw = [roi_region(frame, self.roi, self.name) for frame in frames]
+        self._still = StillMark.learn(raw, self.polarity, int(self.config.pad_px), still)
+        # A mark moving less than its width is in the median the plate's learning starts from
+        small = self._still is None and not still and moves_little(centroid[1], x)
+        if small:
+            self._still = SmallMotion.learn(raw, self.polarity, int(self.config.pad_px))
+        if self._still is None and not still and not small:
             if self.texture < TEXTURE_SCORE:
                 self._prime_plain(regions, frames, centroid)  # calibrates a plate it keeps
             else:
