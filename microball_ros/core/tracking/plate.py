@@ -104,9 +104,10 @@ from microball_ros.core.tracking.smear import (
     smear_start,
     smear_verdict,
 )
-from microball_ros.core.tracking.still import StillMark, is_still
+from microball_ros.core.tracking.still import REACH, StillMark, is_still
 
 ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
+GATHER_BYTES = 2 ** 28  # a still mark that moved is learned again if its frames fit in this
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 # A plain plate's plate is kept if it reports every frame the centroid does over priming and
@@ -152,6 +153,9 @@ class PlateMarkTracker:
         # A still mark, or one moving less than its width, on a textured plate
         self._still: StillMark | SmallMotion | None = None
         self._moved = False  # ... that moved since ``reset``
+        self._still_at: float | None = None  # a still mark's centroid on a plain plate (ROI px)
+        self._gathered: list | None = None  # frames since it moved, to learn it again from
+        self.revised: list[MarkMeasurement] = []  # ``_gather``'s frames measured again
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
         self._rows: slice | None = None  # plain plate: centroid.mark_rows (None: no guard)
         self._band: np.ndarray | None = None
@@ -189,6 +193,7 @@ class PlateMarkTracker:
         self._predictor.reset()
         self._gains.reset()
         self._moved = False
+        self._gathered = None
         polarity = self._fallback.polarity
         self._fallback.reset()
         self._fallback.polarity = polarity
@@ -227,6 +232,8 @@ class PlateMarkTracker:
         small = self._still is None and not still and moves_little(centroid[1], x)
         if small:
             self._still = SmallMotion.learn(raw, self.polarity, int(self.config.pad_px))
+        self._still_at = float(np.nanmedian(centroid[0])) if (
+            still and self._still is None) else None
         if self._still is None and not still and not small:
             if self.texture < TEXTURE_SCORE:
                 self._prime_plain(regions, frames, centroid)  # calibrates a plate it keeps
@@ -339,6 +346,7 @@ class PlateMarkTracker:
         self._half = self._outer = self._whole = 8.0
         self._shift, self._rms, self._sigma_scale = 0.0, 1.0, 1.0
         self._offset, self._asymmetry, self._still = 0.0, math.nan, None
+        self._still_at = None
         self._gains.forget_spread()
         self._rows, self._band, self._row_tolerance = None, None, math.inf
         self._refused = False
@@ -466,9 +474,17 @@ class PlateMarkTracker:
                                         self.roi[0])
             if found.reason != 'moved':
                 return found
-            self._moved = True  # it moves: the centroid measures it until ``reset``
+            self._start_gathering(frame)  # it moves: the centroid measures it until learned
+        if self._gathered is not None:
+            return self._gather(frame)
         if plate is None or self.weights is None:
-            return self._fallback.measure(frame)
+            found = self._fallback.measure(frame)
+            if self._still_at is not None and not self._moved and found.valid and abs(
+                    found.position_px - self.roi[0] - self._still_at) > REACH:
+                self._start_gathering(frame)  # a still mark on a plain plate moves
+                if self._gathered is not None:
+                    self._gathered.append(frame)
+            return found
         # The learned plate (see the module).
         cfg = self.config
         w = self.roi[2]
@@ -563,6 +579,31 @@ class PlateMarkTracker:
         return MarkMeasurement(position + self.roi[0] + self._offset, quality,
                                sigma_px=sigma * self._sigma_scale,
                                contrast=peak, extent_px=last - first)
+
+    def _start_gathering(self, frame) -> None:
+        """Note that a still mark moved; gather frames if ``GATHER_BYTES`` holds them."""
+        self._moved = True
+        fits = frame.nbytes * max(int(self.config.prime_frames), 12) <= GATHER_BYTES
+        self._gathered = [] if fits else None
+
+    def _gather(self, frame) -> MarkMeasurement:
+        """Measure ``frame`` by the centroid, gathering frames to learn the moving mark from.
+
+        A mark still (or moving little) over the priming frames that then moves (a servo
+        started after the camera, a slider that slips) is learned again from the
+        ``config.prime_frames`` frames after it moved, which are then measured again with what
+        was learned: ``revised`` (their measurements, in order, before this frame's; a batch
+        run replaces what it had). A node has published them already.
+        """
+        assert self._gathered is not None
+        self._gathered.append(frame)
+        if len(self._gathered) < max(int(self.config.prime_frames), 12):
+            return self._fallback.measure(frame)
+        frames, self._gathered = self._gathered, None
+        self.prime(frames)
+        found = [self.measure(each) for each in frames]
+        self.revised = found[:-1]
+        return found[-1]
 
     def _hidden(self, region, first, last) -> bool:
         """Return True if the rows of the whole mark (columns first..last) depart from its own.

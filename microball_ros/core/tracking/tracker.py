@@ -139,6 +139,14 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         result = tracker.process(frame, stamp)
         stamps.append(result.time)
         rows.append(result.marks)
+        for name, mark in tracker.marks.items():  # frames measured again (plate._gather)
+            revised = getattr(mark, 'revised', None)
+            if revised:
+                begin = len(rows) - 1 - len(revised)
+                for back, found in enumerate(revised):
+                    if begin + back >= 0:
+                        rows[begin + back][name] = found
+                revised.clear()
         if progress is not None and len(rows) % 100 == 0:
             progress(len(rows), n_frames)
     if progress is not None:
