@@ -107,6 +107,7 @@ from microball_ros.core.tracking.smear import (
 from microball_ros.core.tracking.still import REACH, StillMark, is_still
 
 ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
+EDGE_PX = 1.0  # px beyond the mark's half-width (quarter depth) that must be in the ROI
 GATHER_BYTES = 2 ** 28  # a still mark that moved is learned again if its frames fit in this
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
@@ -546,7 +547,7 @@ class PlateMarkTracker:
         delta, blur, curve, gain, _, rms, sigma, sigma_gain = fit
         position = delta + j0 + plate.center
         peak = gain * float(plate.values.max())
-        first, last = (position + end for end in path_range(blur, curve, reach))
+        first, last = (position + end for end in path_range(blur, curve, self._half + EDGE_PX))
         # A smear on a known motion may move further from the search's start; so may one
         # searched without a prediction on a plain plate (nothing else there to match).
         smeared = self._motion or self._periodic or (gated is None

@@ -21,6 +21,7 @@ import numpy as np
 
 LIGHT_ORDER = 2  # light_level: the light per frame over the ROI, a polynomial of this degree
 LIGHT_FLANK = 48.0  # light_level's flank while tracking: px on either side of the mark
+ONE_SIDE = 24  # light_level: a flank this long alone gives the light's slope (an ROI's end)
 
 MAD_TO_SIGMA = 1.4826
 
@@ -215,7 +216,9 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     without the columns far off the fit: without a centre, those in a dip (the mark); with
     one, any (something passing over the plate). With ``flank`` (px), only the columns that
     far beyond ``extent`` on either side are used, and the light is a straight line across
-    the mark (a constant when one side is missing).
+    the mark; when one side is missing (an ROI's end), a line through the other if it holds
+    ``ONE_SIDE`` columns (a light gradient: a textured mark 5 px from the ROI's end lost 9 of
+    240 frames with a constant), else a constant.
     """
     sign = 1.0 if polarity == 'dark' else -1.0
     order = LIGHT_ORDER if order is None else int(order)
@@ -228,9 +231,9 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
         keep = np.abs(offset) > 0.5 * extent
         if flank is not None:
             keep &= np.abs(offset) <= 0.5 * extent + flank
-            sides = min(np.count_nonzero(keep & (offset < 0)),
-                        np.count_nonzero(keep & (offset > 0)))
-            order = min(order, 1) if sides >= 8 else 0
+            sides = sorted((np.count_nonzero(keep & (offset < 0)),
+                            np.count_nonzero(keep & (offset > 0))))
+            order = min(order, 1) if sides[0] >= 8 or sides[1] >= ONE_SIDE else 0
             least = 12
         if np.count_nonzero(keep) < least:
             keep = np.ones(w, dtype=bool)
