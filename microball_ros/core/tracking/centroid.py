@@ -479,11 +479,8 @@ class CentroidMarkTracker:
         snr = peak * math.sqrt(cfg.smoothing_px) / noise
         if snr < cfg.min_snr or peak < cfg.min_depth:
             return self._invalid('low contrast', contrast=peak)
-        # The window pads the dip alike on both sides, less near the ROI's end (a tight
-        # ROI: a mark 5 px from it was refused); the dip itself must be inside.
-        side = min(pad, lo - 1, w - 2 - hi)
-        first, last = lo - side, hi + side
-        if side < 0:
+        first, last = lo - pad, hi + pad
+        if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
         if saturation is not None and polarity == 'dark':
             window = raw[:, max(first - guard, 0):last + guard + 1]

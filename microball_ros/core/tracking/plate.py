@@ -59,7 +59,9 @@ averaged over the exposure. The tracker
 Long smears (core.tracking.smear: a path over ``LONG_BLUR`` of the ROI) start step 1 from a
 periodic motion fitted to the smears, and search a bank of its kernels; the plate is kept only
 if its priming track passes ``smear_verdict``, else every frame is NaN. A mark still over the
-priming frames learns no plate: the centroid measures it, or core.tracking.still on a texture.
+priming frames learns no plate: the centroid measures it, or core.tracking.still on a texture;
+one moving less than its own width neither (core.tracking.small). Once such a mark moves, the
+next ``prime_frames`` frames are gathered and it is learned again from them (``_gather``).
 """
 
 import math
