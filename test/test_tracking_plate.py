@@ -364,17 +364,6 @@ def test_a_mark_moving_less_than_its_width():
         _assert_tracked(render_scene(spec, 90, seed=5), rms=0.08, largest=0.3)
 
 
-def test_a_blob_moving_less_than_its_width_is_centred_by_the_centroid():
-    """A Gaussian blob moving +-6 px: no edges to centre it by (core.tracking.small).
-
-    Its centre is where the centroid is on average over the priming frames, less each
-    frame's registered shift. By the edges' fallback (find_mark's whole columns) it was
-    0.31 / 0.14 px RMS; measured now 0.035 / 0.044 px.
-    """
-    spec = SceneSpec(plates=plates(shape='blob', amplitude=6.3, frequency=1.6), flicker=0.1)
-    _assert_tracked(render_scene(spec, 120, seed=7), rms=0.08, largest=0.3)
-
-
 @dataclasses.dataclass(frozen=True)
 class _StartingLate(PlateSpec):
     """A plate still until ``start`` s, then swinging from rest over twice ``amplitude``."""

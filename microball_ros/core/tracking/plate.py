@@ -234,8 +234,7 @@ class PlateMarkTracker:
         # A mark moving less than its width is in the median the plate's learning starts from
         small = self._still is None and not still and moves_little(centroid[1], x)
         if small:
-            self._still = SmallMotion.learn(raw, self.polarity, int(self.config.pad_px),
-                                            centroid[0])
+            self._still = SmallMotion.learn(raw, self.polarity, int(self.config.pad_px))
         self._still_at = float(np.nanmedian(centroid[0])) if (
             still and self._still is None) else None
         if self._still is None and not still and not small:

@@ -16,9 +16,7 @@ half the frames lost (+-12 px: 0.02-0.07 px). ``SmallMotion`` instead
    Gauss-Newton on the shift with a gain, a light gradient and an offset solved at each
    step (their standard error from the fit's residual);
 4. puts the mark's centre where its edges are most nearly mirror-symmetric
-   (core.tracking.plate_rows.edge_offset, at the registered positions), as for a still mark;
-   a mark without edges (a blob: the reference's steepest slope under ``SHARP`` of its depth)
-   where the centroid is on average over the priming frames, less each frame's shift.
+   (core.tracking.plate_rows.edge_offset, at the registered positions), as for a still mark.
 
 Used when the centroid's priming positions (10th-90th percentile) span less than the mark's
 extent and the plate has a texture; a frame registered beyond the priming frames' travel by
@@ -31,7 +29,7 @@ import math
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from microball_ros.core.tracking.plate_rows import SHARP, edge_offset
+from microball_ros.core.tracking.plate_rows import edge_offset
 from microball_ros.core.tracking.profile import row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.still import (
@@ -89,7 +87,7 @@ class SmallMotion:
         self.reach = float(self.limit)
 
     @classmethod
-    def learn(cls, regions, polarity: str, pad: int, centroid=None):
+    def learn(cls, regions, polarity: str, pad: int):
         """Return a SmallMotion for a textured plate's mark that moves little, else None.
 
         ``regions``: the priming frames' ROIs as they are. None where the plate has no
@@ -132,21 +130,13 @@ class SmallMotion:
         if not (np.all(np.isfinite(shifts)) and 0 < small.residual < STATIC * depth
                 and found_there(regions, polarity, start, extent)):
             return None
-        sign = 1.0 if polarity == 'dark' else -1.0
-        if centroid is not None and _slope(reference, start, extent, sign) < SHARP:
-            # No edges to go by (a blob): where the centroid is on average, which it is on
-            # a plain plate for any mark (find_mark's whole columns are half a pixel off).
-            seen = np.asarray(centroid, dtype=float) - shifts
-            if np.count_nonzero(np.isfinite(seen)) < 8:
-                return None
-            small.center, small.extent = float(np.nanmedian(seen)), extent
-        else:
-            offset, asymmetry = edge_offset(regions, weights, start + shifts,
-                                            np.zeros((len(regions), 2)), extent, sign,
-                                            max(MOVE, extent))
-            if not math.isfinite(asymmetry):
-                return None
-            small.center, small.extent = start + offset, extent
+        offset, asymmetry = edge_offset(regions, weights, start + shifts,
+                                        np.zeros((len(regions), 2)), extent,
+                                        1.0 if polarity == 'dark' else -1.0,
+                                        max(MOVE, extent))
+        if not math.isfinite(asymmetry):
+            return None
+        small.center, small.extent = start + offset, extent
         small.reach = min(float(np.max(np.abs(shifts))) + REACH, float(limit))
         return small
 
@@ -219,23 +209,3 @@ def _aligned(profiles, fits, origin, tilt, lo, hi):
     if not np.all(count > 0):
         return None
     return total / count
-
-
-def _slope(reference, start: float, extent: float, sign: float) -> float:
-    """Return the reference's steepest slope over its depth near ``start`` (1/px).
-
-    The depth against its median beside the mark (``extent`` + 2 to ``extent`` + ``FLANK``
-    px away), within ``extent`` + 2 px: as plate_rows.sharpness, for the row-weighted
-    profile; 0 if there is no depth.
-    """
-    columns = np.arange(reference.size)
-    offset = np.abs(columns - start)
-    beside = (offset > extent + 2.0) & (offset <= extent + FLANK)
-    near = offset <= extent + 2.0
-    if np.count_nonzero(beside) < 4 or np.count_nonzero(near) < 3:
-        return 0.0
-    deficit = sign * (float(np.median(reference[beside])) - reference)
-    peak = float(deficit[near].max())
-    if not peak > 0:
-        return 0.0
-    return float(np.abs(np.gradient(deficit))[near].max()) / peak
