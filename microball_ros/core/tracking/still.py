@@ -18,15 +18,16 @@ blind set's t15: 0.40 px); on a coarse one (grain 7.5 px) by pixels. ``StillMark
 
 A frame is not reported if the profile no longer matches (``MATCH`` times the priming
 residual: something over the mark) or the mark moved over ``REACH`` px (it is no longer
-still: the centroid tracker measures it from then on). Still: the centroid's priming
-positions stay within ``STILL`` px (``is_still``), or the priming frames register on the
-mean within ``STATIC`` of the mark's depth and ``REACH`` / 2 px and show the mark where the
-mean does (``found_there``; a centroid jumping between texture dips cannot tell). Then no
-plate is learned (nothing moves to tell it from the field fixed in the image; a textured
-plate's smear search took the mark's dip for a long smear and refused every frame). Only
-for a plate with a texture (``TEXTURE`` of its level beside the mark): on a plain plate the
-centroid is exact, and the edges of a still mark err by the interpolation of its pixels (up
-to 0.006 px under 0.8 px optics, 0.05 px under 0.5 px).
+still: core.tracking.plate learns it again from the frames that follow). Still: the
+centroid's priming positions stay within ``STILL`` px (``is_still``), or the priming frames
+register on the mean within ``STATIC`` of the mark's depth and ``REACH`` / 2 px and show the
+mark where the mean does (``found_there``; a centroid jumping between texture dips cannot
+tell). Then no plate is learned (nothing moves to tell it from the field fixed in the image;
+a textured plate's smear search took the mark's dip for a long smear and refused every
+frame). Only for a plate with a texture (``TEXTURE`` of its level beside the mark): on a
+plain plate the centroid is exact, and the edges of a still mark err by the interpolation of
+its pixels (up to 0.006 px under 0.8 px optics, 0.05 px under 0.5 px).
+
 Measured on still marks (boxes, discs, crosses, bar pairs, bright discs and rectangles) on
 textures of 3-12 % and grain 2-8 px: before step 1, 6 of 70 erred by 1.6-6.1 px or were
 lost in some or all frames; now none, mean errors within 0.12 px (a bright disc on an 8 %
