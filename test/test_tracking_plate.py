@@ -376,18 +376,6 @@ class _StartingLate(PlateSpec):
         return self.origin - self.amplitude * np.cos(2 * math.pi * self.frequency * run)
 
 
-def test_a_bar_pair_moving_less_than_its_width_is_centred_on_the_pair():
-    """A pair of bars moving +-2 px on a faint texture: each bar is mirror-symmetric too.
-
-    The edges were searched over the mark's half-extent from find_mark's centre and settled on
-    one bar's: the slider 10 px off in every frame. Searched within ``still.MOVE`` (3 px):
-    measured 0.008 / 0.011 px.
-    """
-    spec = SceneSpec(plates=plates(shape='pair', amplitude=2.14, texture=4.0, contrast=-50.0,
-                                   frequency=2.31), flicker=0.057)
-    _assert_tracked(render_scene(spec, 120, seed=633), rms=0.05, largest=0.2)
-
-
 def test_a_mark_still_while_priming_is_learned_again_once_it_moves():
     """The camera starts 3 s before the servo: both plates still over the priming frames.
 

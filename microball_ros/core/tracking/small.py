@@ -135,7 +135,7 @@ class SmallMotion:
         offset, asymmetry = edge_offset(regions, weights, start + shifts,
                                         np.zeros((len(regions), 2)), extent,
                                         1.0 if polarity == 'dark' else -1.0,
-                                        MOVE)
+                                        max(MOVE, extent))
         if not math.isfinite(asymmetry):
             return None
         small.center, small.extent = start + offset, extent

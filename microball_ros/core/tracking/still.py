@@ -45,8 +45,7 @@ from microball_ros.core.tracking.results import MarkMeasurement
 
 STILL = 2.0  # px: the centroid's priming positions (10th-90th percentile) within this: still
 TEXTURE = 0.02  # RMS beside the mark about a parabola along each row, of its level
-MOVE = 3.0  # px: the edges may move find_mark's centre this far (a bar pair's each bar is
-# mirror-symmetric too: searched over its half-extent, a pair moved 10 px onto one bar)
+MOVE = 3.0  # px: the edges may move the found centre this far, or its half-extent
 REACH = 2.0  # px: a frame's shift beyond this: the mark moves, no longer still
 MATCH = 3.0  # a frame's residual over this many times the priming median: not reported
 FLANK = 8  # px of the window beside the mark
@@ -186,7 +185,7 @@ class StillMark:
         offset, asymmetry = edge_offset(regions, weights, np.full(len(regions), start),
                                         np.zeros((len(regions), 2)), extent,
                                         1.0 if polarity == 'dark' else -1.0,
-                                        MOVE)
+                                        max(MOVE, extent))
         if not math.isfinite(asymmetry):
             return None
         still_mark = cls(weights, lo, start + offset, reference, extent)
