@@ -96,13 +96,7 @@ def polarity_of(profile: np.ndarray, min_skew: float = 0.5) -> str | None:
     """
     u = np.linspace(-1.0, 1.0, profile.size)
     residual = profile - np.polyval(np.polyfit(u, profile, 2), u)
-    spread = float(np.std(residual))
-    if spread <= 0:
-        return None
-    skew = float(np.mean(residual ** 3)) / spread ** 3
-    if abs(skew) < min_skew:
-        return None
-    return 'dark' if skew < 0 else 'bright'
+    return _skew_polarity(residual, min_skew)
 
 
 def polarity_of_pixels(region: np.ndarray, min_skew: float = 0.5) -> str | None:
@@ -118,6 +112,14 @@ def polarity_of_pixels(region: np.ndarray, min_skew: float = 0.5) -> str | None:
     design = np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1).reshape(-1, 6)
     values = region.ravel().astype(np.float64)
     residual = values - design @ np.linalg.lstsq(design, values, rcond=None)[0]
+    return _skew_polarity(residual, min_skew)
+
+
+def _skew_polarity(residual: np.ndarray, min_skew: float) -> str | None:
+    """Return 'dark' for a negative skewness of ``residual``, 'bright' for a positive one.
+
+    None when its magnitude is below ``min_skew`` (or the residual is flat).
+    """
     spread = float(np.std(residual))
     if spread <= 0:
         return None

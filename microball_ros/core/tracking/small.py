@@ -33,7 +33,6 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from microball_ros.core.tracking.plate_rows import edge_offset
-from microball_ros.core.tracking.profile import row_weights
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.still import (
     FLANK,
@@ -41,8 +40,8 @@ from microball_ros.core.tracking.still import (
     MOVE,
     REACH,
     STATIC,
-    find_mark,
     found_there,
+    mark_and_rows,
 )
 
 ROUNDS = 3  # the reference's alignment rounds
@@ -99,15 +98,11 @@ class SmallMotion:
         """
         stack = np.asarray(regions, dtype=np.float64)
         mean = stack.mean(axis=0)
-        found = find_mark(mean, polarity)
+        found = mark_and_rows(mean, polarity, pad)
         if found is None:
             return None
-        start, extent = found
+        start, extent, weights = found
         width = mean.shape[1]
-        weights = row_weights(mean, int(start - extent) - 2, int(start + extent) + 3, pad,
-                              polarity)
-        if weights is None or not extent > 0:
-            return None
         margin = int(math.ceil(extent)) + FLANK
         lo, hi = int(start) - margin, int(start) + margin + 1
         limit = min(lo, width - hi)

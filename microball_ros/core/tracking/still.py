@@ -114,6 +114,23 @@ def find_mark(mean: np.ndarray, polarity: str) -> tuple[float, float] | None:
     return 0.5 * float(columns[0] + columns[-1]), 0.5 * float(columns[-1] - columns[0] + 1)
 
 
+def mark_and_rows(mean: np.ndarray, polarity: str, pad: int):
+    """Return (centre, half-extent, row weights) of the mark in a mean ROI, or None.
+
+    ``find_mark``'s centre and half-extent, and the rows weighted by the mark's depth there
+    (profile.row_weights, ``pad`` px beyond it); None if either is not found.
+    """
+    found = find_mark(mean, polarity)
+    if found is None:
+        return None
+    start, extent = found
+    weights = row_weights(mean, int(start - extent) - 2, int(start + extent) + 3, pad,
+                          polarity)
+    if weights is None or not extent > 0:
+        return None
+    return start, extent, weights
+
+
 def found_there(regions, polarity: str, center: float, extent: float) -> bool:
     """Return True if ``find_mark`` puts the mark within ``extent`` px of ``center``.
 
@@ -157,17 +174,15 @@ class StillMark:
         centroid's ``is_still``), or as the module says.
         """
         mean = np.mean(regions, axis=0)
-        found = find_mark(mean, polarity)
+        found = mark_and_rows(mean, polarity, pad)
         if found is None:
             return None
-        start, extent = found
+        start, extent, weights = found
         width = mean.shape[1]
-        weights = row_weights(mean, int(start - extent) - 2, int(start + extent) + 3, pad,
-                              polarity)
         lo, hi = max(int(start - extent) - FLANK, 0), min(int(start + extent) + FLANK + 1, width)
         columns = np.arange(width)
         beside = np.abs(columns - start) > extent + 4.0
-        if weights is None or not extent > 0 or np.count_nonzero(beside) < 12 or hi - lo < 8:
+        if np.count_nonzero(beside) < 12 or hi - lo < 8:
             return None
         rows = mean[weights > 0][:, beside]
         fit = np.polynomial.polynomial.polyfit(columns[beside], rows.T, 2)
