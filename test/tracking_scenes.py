@@ -130,13 +130,16 @@ class Scene:
     expected: list
 
 
-def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=()):
+def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), passing=()):
     """Render ``n_frames`` frames; ``covers`` = [(plate, first, last)] frames hiding a mark.
 
     A cover paints the plate's own level (times the illumination) over the mark's whole
     band around its position, as a particle or a shadow would, so nothing of it is seen.
     ``discs`` = [(plate, first, last, dx, dy, radius, level)]: a disc of ``level`` DN (a
     ball) drawn at (dx, dy) px from the mark's exposure-mean centre, over the mark.
+    ``passing`` = [(plate, first, last, x_first, x_last, radius, depth)]: a particle of its
+    own, a disc in the mark's rows moving from column x_first (frame first) to x_last (frame
+    last) at a steady speed, that lets 1 - depth of the light through.
     """
     rng = np.random.default_rng(seed)
     cols = np.arange(spec.width, dtype=float)
@@ -185,6 +188,14 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=()):
                     inside = np.clip(radius + 0.5 - np.hypot(cols[None, :] - cx,
                                                              rows[band][:, None] - cy), 0, 1)
                     scene[band] += inside * (level - scene[band])
+        for name, first, last, x_first, x_last, radius, depth in passing:
+            if first <= n <= last:
+                top, bottom = (int(v) for v in spec.plates[name].band)
+                cx = x_first + (x_last - x_first) * (n - first) / max(last - first, 1)
+                inside = np.clip(radius + 0.5 - np.hypot(cols[None, :] - cx,
+                                                         rows[top:bottom][:, None]
+                                                         - (top + bottom) / 2.0), 0, 1)
+                scene[top:bottom] *= 1.0 - depth * inside
         lit = light
         if spec.drift:
             change = spec.drift * (2.0 * n / max(n_frames - 1, 1) - 1.0)

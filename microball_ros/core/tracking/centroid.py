@@ -2,22 +2,23 @@
 
 Owns CentroidMarkTracker. Per frame it removes the static background learned on the priming
 frames (core.tracking.background, if any), builds the profile and baseline
-(core.tracking.profile), locates the dip (core.tracking.search), checks it (signal-to-noise,
-the mark clear of the ROI edges, no saturation, row weights like the mark's own, an integrated
-deficit consistent with recent frames) and fits its position (core.tracking.subpixel). A
-failed check gives NaN and a quality below ``min_quality``: positions are never invented. Its
-state, all from earlier frames in order: the previous position (to tell a still mark from a
-moving one), the recent integrated deficits (to recognise a partly hidden mark) and, after
-the first ``ROW_FRAMES`` frames the mark was found in, its rows and row weights (the plates
-move along x only, so they do not change; a frame whose rows depart from them shows a mark
-partly hidden or something dark beside it).
+(core.tracking.profile; the plate's columns that something else darkens, such as a particle
+passing, left out of the baseline: ``disturbed``), locates the dip (core.tracking.search),
+checks it (signal-to-noise, the mark clear of the ROI edges, no saturation, row weights like
+the mark's own, an integrated deficit consistent with recent frames) and fits its position
+(core.tracking.subpixel). A failed check gives NaN and a quality below ``min_quality``:
+positions are never invented. Its state, all from earlier frames in order: the previous
+position (to tell a still mark from a moving one), the recent integrated deficits (to recognise
+a partly hidden mark) and, after the first ``ROW_FRAMES`` frames the mark was found in, its
+rows and row weights (the plates move along x only, so they do not change; a frame whose rows
+depart from them shows a mark partly hidden or something dark beside it).
 
 A smear longer than ``LONG_SMEAR`` of the ROI (15 fps at a whole-frame exposure) leaves too
 little plate in its own frame for a baseline: it is measured against the plain plate learned
 while priming (core.tracking.background.StaticPlate) times the frame's gain, its window runs
 to the noise, and a window that cuts the smear rejects the frame. That plate is learned only
 when the priming frames, each with its own baseline, show long smears or lose frames
-(``_smears_long``).
+(``_smears_long``), and in the second case kept only if it loses fewer of them.
 """
 
 from collections import deque
@@ -33,6 +34,7 @@ from microball_ros.core.tracking.profile import (
     column_profile,
     default_saturation,
     deficit_noise,
+    disturbed,
     plate_row_weights,
     polarity_of,
     polarity_of_pixels,
@@ -57,6 +59,7 @@ LONG_SMEAR = 0.25
 SMEAR_THRESHOLD = 0.01
 SHORT_FIRST = 0.6
 CUT_FRACTION = 0.05
+DISTURBED_ROUNDS = 3  # something over the plate beside the mark: left out of the baseline
 LOST_FRACTION = 0.2  # priming frames lost with their own baseline: smears may be long
 SMEAR_GROWTH = 2.0  # a long smear's extent (90th percentile) over its shortest (10th)
 
@@ -182,32 +185,46 @@ class CentroidMarkTracker:
                 if self.config.polarity == 'auto':
                     self.polarity = None  # found again, on the frames as they are
                 self._find_polarity(frames)
-        if self.polarity is not None and len(frames) > 0 and self._smears_long(frames):
-            self._plate.learn(np.stack([self._background.apply(roi_region(
-                frame, self.roi, self.name)) for frame in frames]), self.polarity,
-                int(self.config.smoothing_px), int(self.config.merge_gap_px))
+        if self.polarity is not None and len(frames) > 0:
+            long, lost = self._smears_long(frames)
+            if long or lost:
+                self._plate.learn(np.stack([self._background.apply(roi_region(
+                    frame, self.roi, self.name)) for frame in frames]), self.polarity,
+                    int(self.config.smoothing_px), int(self.config.merge_gap_px))
+            if lost and not long and np.count_nonzero(np.isnan(self._extents(frames))) >= lost:
+                # Frames lost for another reason than long smears (a particle passing): the
+                # plate does not find them either, and would measure the others worse.
+                self._plate.clear()
 
-    def _smears_long(self, frames) -> bool:
-        """Return True if the priming frames may hold smears too long for a baseline; reset.
+    def _smears_long(self, frames) -> tuple[bool, int]:
+        """Return whether the priming frames may hold smears too long for a baseline; reset.
 
-        Measured with each frame's own baseline: more than ``LOST_FRACTION`` of the frames
-        lost, or the 90th percentile of the mark's extent (smear and all) at least
-        ``LONG_SMEAR`` of the ROI's width (the extent measured against the plate) and
-        ``SMEAR_GROWTH`` times its 10th percentile (a wide mark that hardly moves in a narrow
-        ROI is no smear: 26 px in a 99 px ROI lost 22 of 90 frames against the plate). Only then
-        is the plain plate learned and tried on every frame: a short mark under a drifting
+        Measured with each frame's own baseline: (long, lost). ``long``: the 90th percentile
+        of the mark's extent (smear and all) at least ``LONG_SMEAR`` of the ROI's width (the
+        extent measured against the plate) and ``SMEAR_GROWTH`` times its 10th percentile (a
+        wide mark that hardly moves in a narrow ROI is no smear: 26 px in a 99 px ROI lost 22
+        of 90 frames against the plate). ``lost``: the frames lost, if more than
+        ``LOST_FRACTION`` of them (else 0); the plate is then kept only if it loses fewer. Only
+        then is the plain plate learned and tried on every frame: a short mark under a drifting
         illumination gradient would look long against it (times one gain; a pair of bars
         smeared over 0.18 of a narrow ROI lost 100 of 120 frames so), and it costs time.
         """
+        extents = self._extents(frames)
+        count = int(np.count_nonzero(np.isnan(extents)))
+        lost = count if count > LOST_FRACTION * len(frames) else 0
+        extents = extents[np.isfinite(extents)]
+        if not extents.size:
+            return False, lost
+        longest, shortest = (float(v) for v in np.percentile(extents, [90, 10]))
+        return longest >= LONG_SMEAR * self.roi[2] and longest >= SMEAR_GROWTH * shortest, lost
+
+    def _extents(self, frames) -> np.ndarray:
+        """Return the mark's extent in each of ``frames`` (px; NaN: lost); reset."""
         polarity = self.polarity
         found = [self.measure(frame) for frame in frames]
         self.reset()
         self.polarity = polarity
-        extents = [m.extent_px for m in found if m.valid and math.isfinite(m.extent_px)]
-        if len(extents) < (1.0 - LOST_FRACTION) * len(found):
-            return True
-        longest, shortest = (float(v) for v in np.percentile(extents, [90, 10]))
-        return longest >= LONG_SMEAR * self.roi[2] and longest >= SMEAR_GROWTH * shortest
+        return np.array([m.extent_px if m.valid else math.nan for m in found], dtype=float)
 
     def _find_polarity(self, frames) -> None:
         """Learn the polarity (if not known) from the first frame the mark is found in; reset."""
@@ -363,9 +380,13 @@ class CentroidMarkTracker:
         deficit = relative_deficit(profile, baseline, polarity)
         _, _, lo, hi = locate(deficit, 0.0, 0.25, cfg.smoothing_px)
         margin = guard + (hi - lo) // 4
+        # Columns something else darkens (``disturbed``): the dips beside the mark first
+        off = np.ones(w, dtype=bool)
+        off[max(lo - margin, 0):hi + margin + 1] = False
+        off = disturbed(deficit, off)
         for attempt in range(3):
             # Plain plate = everything outside the mark and a guard band; refit on it twice.
-            keep = np.ones(w, dtype=bool)
+            keep = ~off
             keep[max(lo - margin, 0):hi + margin + 1] = False
             if np.count_nonzero(keep) < 12:
                 flat = float(np.max(np.abs(deficit))) < cfg.min_depth
@@ -373,6 +394,15 @@ class CentroidMarkTracker:
             if attempt == 2:
                 break
             deficit = self._deficit(profile, keep, polarity)
+            for _ in range(DISTURBED_ROUNDS if deficit is not None else 0):
+                more = disturbed(deficit, keep)
+                if not more.any() or np.count_nonzero(keep & ~more) < 12:
+                    break
+                off |= more
+                keep &= ~more
+                deficit = self._deficit(profile, keep, polarity)
+                if deficit is None:
+                    break
             if deficit is None:
                 return self._invalid('too dark')
             _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px,

@@ -12,10 +12,11 @@ bound's for a box and far more for thin strokes (a cross, bars): the plate is le
 and kept only if, over the priming frames, it reports every frame the centroid does and it is
 ``steadier`` (its jitter about a smooth periodic motion under ``PLAIN_MARGIN`` times the
 centroid's, or its standard errors when the motion is not periodic, and the two tracks agreeing
-as their standard errors allow); its positions are offset by the mean difference of the two
-tracks there (the centroid is exact on average). Kept, it alone measures every frame, and
-a frame whose rows depart from the mark's own (``mark_rows`` of the priming frames, as the
-centroid tracker learns them) is 'mark partly hidden'. Else every frame is the centroid's.
+as their standard errors allow), on the frames where the two do not disagree grossly
+(``agreeing``: a particle passing pulls one); its positions are offset by the mean difference
+of the two tracks there (the centroid is exact on average). Kept, it alone measures every
+frame, and a frame whose rows depart from the mark's own (core.tracking.rows_guard) is 'mark
+partly hidden'. Else every frame is the centroid's.
 
 On a textured plate the texture moves with the mark, so near the mark the plate's relative
 deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
@@ -23,34 +24,39 @@ the exposure's motion kernel ``K`` (core.tracking.template: a quadratic path, bl
 curvature ``Q``). A frame's deficit is ``d(x) = c + g (D * K)(x - s)`` with ``s`` the position
 averaged over the exposure. The tracker
 
-1. learns from the priming frames the row weights (the mark's depth per row, in the rows it
-   is deep in: ``deep_rows``) and, jointly (``PlateSolver``, alternating least squares), the
-   whole plate's deficit ``D`` seen through the ROI, the static field (illumination and dust
-   fixed in the image) with each frame's light (flicker and a drifting gradient: a quadratic
-   over the ROI), and each frame's position and kernel: first positions from the dip's
-   centroid (the parts of a mark, such as two bars, joined; a gain per frame divided out) and
-   kernels from neighbouring frames, then rounds of ``D`` (preconditioned conjugate
-   gradients), static field and lights (closed form), positions and kernels (fits), until the
-   fits move the positions under ``SETTLED`` px RMS (at most ``ROUNDS``). ``D``'s origin is
-   then moved to the mark's centre, the mid-point of its outer edges (half-depth crossings,
-   or the centre of symmetry if they are pixels off it: ``PlateModel.mark_center``). All is
-   learned twice: the second time from the positions and kernels the first plate measures,
-   on the ROI divided by a row flat field (``row_flat_field``: a pattern fixed in the image
-   that differs between rows) if there is one; kept if it fits better. A texture moves those
-   crossings by 0.1-0.3 px: the positions are then offset to where the mark's edges, row by
-   row, are most nearly mirror-symmetric (core.tracking.plate_rows.edge_offset);
+1. learns (core.tracking.plate_learn) from the priming frames the row weights (the mark's depth
+   per row, in the rows it is deep in: ``deep_rows``) and, jointly (``PlateSolver``,
+   alternating least squares), the whole plate's deficit ``D`` seen through the ROI, the static
+   field (illumination and dust fixed in the image) with each frame's light (flicker and a
+   drifting gradient: a quadratic over the ROI), and each frame's position and kernel: first
+   positions from the dip's centroid (the parts of a mark, such as two bars, joined; a gain per
+   frame divided out) and kernels from neighbouring frames, then rounds of ``D``
+   (preconditioned conjugate gradients), static field and lights (closed form), positions and
+   kernels (fits), until the fits move the positions under ``SETTLED`` px RMS (at most
+   ``ROUNDS``). ``D``'s origin is then moved to the mark's centre, the mid-point of its outer
+   edges (half-depth crossings, or the centre of symmetry if they are pixels off it:
+   ``PlateModel.mark_center``). All is learned twice: the second time from the positions and
+   kernels the first plate measures, on the ROI divided by a row flat field
+   (``row_flat_field``: a pattern fixed in the image that differs between rows) if there is
+   one; kept if it fits better. A texture moves those crossings by 0.1-0.3 px: the positions
+   are then offset to where the mark's edges, row by row, are most nearly mirror-symmetric
+   (core.tracking.plate_rows.edge_offset);
 2. per frame divides the row-weighted profile by the static field and by the frame's light: a
-   straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly), to the
-   profile over the whole learned plate placed at the predicted position, so the texture is not
-   mistaken for light and the mark's contrast is relative to the plate next to it in the same
-   frame (flicker does not look like a covered mark); then searches the mark by a matched
-   filter of ``D`` smeared by the predicted motion (a sinusoid of the priming track's
-   frequency), gated around the predicted position (``MotionPredictor``) so texture dips
-   never win; after a loss over the whole ROI (plate_search.search_kernels), where a first
-   fit poorer than priming's is refused;
+   straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly, so that a
+   particle over a flank does not tilt it: profile.light_level), to the profile over the whole
+   learned plate placed at the predicted position, so the texture is not mistaken for light and
+   the mark's contrast is relative to the plate next to it in the same frame (flicker does not
+   look like a covered mark); then searches the mark by a matched filter of ``D`` smeared by
+   the predicted motion (a sinusoid of the priming track's frequency), gated around the
+   predicted position (``MotionPredictor``) so texture dips never win; after a loss over the
+   whole ROI (plate_search.search_kernels), where a first fit poorer than priming's is refused
+   and the ``CANDIDATES`` best matches are tried in turn (a particle near the mark matches
+   better than the mark). A match ``RELIGHT`` px or more from where it was predicted (or
+   without a prediction) has the light fitted again beside it;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
    common to data and model, is signal rather than error; a fit far worse than priming's is
-   restarted from short kernels (their blur and curvature are hardly separable);
+   restarted from short kernels (their blur and curvature are hardly separable), and then
+   fitted without the columns something beside the mark darkens (``PlateModel.fit_clear``);
 4. checks the mark's path clear of the ROI edges, its contrast ``g`` against recent frames
    (a covered mark loses contrast; a jump of it, something passing beside the mark, is refused:
    core.tracking.gains) and the fit's residual against the residuals while priming: a failed
@@ -64,27 +70,26 @@ one moving less than its own width neither (core.tracking.small). Once such a ma
 next ``prime_frames`` frames are gathered and it is learned again from them (``_gather``).
 """
 
+import copy
 import math
 
 import numpy as np
 
 from microball_ros.core.tracking.background import StaticBackground
-from microball_ros.core.tracking.centroid import CentroidMarkTracker, mark_rows
+from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
 from microball_ros.core.tracking.gains import MarkGains
 from microball_ros.core.tracking.image import Roi, check_roi, roi_region
+from microball_ros.core.tracking.plate_learn import LearnedPlate, learn_plate
 from microball_ros.core.tracking.plate_model import PlateModel, grid_window
 from microball_ros.core.tracking.plate_rows import edge_offset
 from microball_ros.core.tracking.plate_search import match_plate, plate_level, search_kernels
-from microball_ros.core.tracking.plate_solver import PlateSolver, motion_kernels
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
-    deep_rows,
-    first_positions,
+    agreeing,
     motion_jitter,
     row_flat_field,
-    static_field,
     steadier,
     texture_score,
 )
@@ -92,10 +97,9 @@ from microball_ros.core.tracking.profile import (
     LIGHT_FLANK,
     default_saturation,
     light_level,
-    row_weights,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
-from microball_ros.core.tracking.search import dip_extent
+from microball_ros.core.tracking.rows_guard import RowsGuard
 from microball_ros.core.tracking.small import SmallMotion, moves_little
 from microball_ros.core.tracking.smear import (
     PeriodicMotion,
@@ -108,18 +112,17 @@ from microball_ros.core.tracking.smear import (
 )
 from microball_ros.core.tracking.still import REACH, StillMark, is_still
 
-ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
 EDGE_PX = 1.0  # px beyond the mark's half-width (quarter depth) that must be in the ROI
 GATHER_BYTES = 2 ** 28  # a still mark that moved is learned again if its frames fit in this
-SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
 RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one fails
 # A plain plate's plate is kept if it reports every frame the centroid does over priming and
 # is priming.steadier than it by this margin.
 PLAIN_MARGIN = 0.95
 SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
-WHOLE_LEVEL = 0.05  # of D's peak: the whole mark, for the rows' guard of a plain plate
 MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 REACQUIRE_MATCH = 1.4  # after a loss, a poorer fit may be false (a shadow leaving: 2.7 px off)
+RELIGHT = 8.0  # px: a match this far from the prediction has the light fitted again beside it
+CANDIDATES = 3  # after a loss, the best matches fitted in turn (a particle beside the mark)
 
 
 class PlateMarkTracker:
@@ -160,10 +163,7 @@ class PlateMarkTracker:
         self._gathered: list | None = None  # frames since it moved, to learn it again from
         self.revised: list[MarkMeasurement] = []  # ``_gather``'s frames measured again
         self._sigma_scale = 1.0  # the fit's standard errors times this (``_calibrate``)
-        self._rows: slice | None = None  # plain plate: centroid.mark_rows (None: no guard)
-        self._band: np.ndarray | None = None
-        self._row_tolerance = math.inf
-        self._row_log: list[np.ndarray] | None = None  # the priming frames' row weights
+        self._guard = RowsGuard(int(self.config.pad_px))  # plain plate: the mark's rows
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
     @property
@@ -326,19 +326,20 @@ class PlateMarkTracker:
             self._relearn(regions, frames)
         if self.plate is None:
             return self._forget()
-        self._row_log = []
+        self._guard.start_log()
         tracked = self._track_priming(frames, self.measure)
-        self._rows, self._band, self._row_tolerance = mark_rows(self._row_log, self.roi[3])
-        self._row_log = None
+        self._guard.learn(self.roi[3])
         plate = tracked[0]
         lost = np.isfinite(centroid) & ~np.isfinite(plate)
+        # Frames where the two disagree grossly (a particle passing pulls one) are left out
+        both = agreeing([centroid, plate])
         better, self.jitter = steadier(
-            [centroid, plate], [np.array([m.sigma_px if m.valid else math.nan for m in found])
-                                for found in (reference, tracked[1])], PLAIN_MARGIN)
+            [np.where(both, track, math.nan) for track in (centroid, plate)],
+            [np.array([m.sigma_px if m.valid else math.nan for m in found])
+             for found in (reference, tracked[1])], PLAIN_MARGIN)
         if np.any(lost) or not better:
             self._forget()
             return
-        both = np.isfinite(centroid) & np.isfinite(plate)
         self._offset = float(np.mean(centroid[both] - plate[both]))
         self._calibrate(tracked)
 
@@ -351,7 +352,7 @@ class PlateMarkTracker:
         self._offset, self._asymmetry, self._still = 0.0, math.nan, None
         self._still_at = None
         self._gains.forget_spread()
-        self._rows, self._band, self._row_tolerance = None, None, math.inf
+        self._guard.forget()
         self._refused = False
         self.reset()
 
@@ -365,83 +366,38 @@ class PlateMarkTracker:
         """
         positions, _, kernels = self._track_priming(frames, self.measure)
         positions[np.isnan(kernels[:, 0])] = np.nan
-        if np.count_nonzero(np.isfinite(positions)) < 8:
+        if np.count_nonzero(np.isfinite(positions)) < 8 or self.polarity is None:
             return
         spans = np.array([self._span(kernel[0], kernel) for kernel in kernels])  # NaN: none
-        before = (self.plate, self._full, self._shift, self._outer, self.static, self._rms,
-                  self.weights, self._half, self.flat)
-        self.flat = row_flat_field(regions, self.weights, positions, spans)
-        if self.flat is not None:
-            regions = [r / self.flat for r in regions]
-        self._learn(regions, (positions, kernels))
-        if self.plate is None or not self._rms <= before[5]:
-            (self.plate, self._full, self._shift, self._outer, self.static, self._rms,
-             self.weights, self._half, self.flat) = before
+        flat = row_flat_field(regions, self.weights, positions, spans)
+        learned = learn_plate(regions if flat is None else [r / flat for r in regions],
+                              self.polarity, self.config, self.exposure_fraction,
+                              self._motion is not None, (positions, kernels))
+        if learned is not None and learned.rms <= self._rms:
+            learned.flat = flat
+            self._use(learned)
 
     def _learn(self, regions, start=None) -> None:
-        """Learn row weights, static field and plate; leave ``plate`` None on failure.
+        """Learn the plate (core.tracking.plate_learn); leave ``plate`` None on failure.
 
         ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
         instead of the dip centroids and kernels from neighbouring frames.
         """
-        cfg, polarity = self.config, self.polarity
-        if polarity is None:
+        if self.polarity is None:
             return
-        self.plate = None
-        positions, extents = first_positions(regions, polarity, cfg)
-        if start is not None and len(start) > 2:  # a long smear: the extents come with it
-            positions, extents = (np.array(v, dtype=float) for v in (start[0], start[2]))
-        elif start is not None:
-            positions = np.array(start[0], dtype=float)
-            typical = float(np.nanmedian(extents)) if np.any(np.isfinite(extents)) else 0.0
-            extents = np.where(np.isfinite(extents), extents, typical)
-        found = [row_weights(r, int(p - e / 2), int(p + e / 2), cfg.pad_px, polarity)
-                 for r, p, e in zip(regions, positions, extents, strict=True)
-                 if math.isfinite(p)]
-        weights = [v for v in found if v is not None]
-        if not weights:
-            return
-        deep = deep_rows(regions, positions, extents, polarity, self.exposure_fraction,
-                         None if start is None else start[1])
-        median = np.median(weights, axis=0)
-        self.weights = median * deep if deep is not None and (median * deep).sum() > 0 else median
-        self.weights /= max(float(self.weights.sum()), 1e-12)
-        profiles = np.array([self.weights @ r.astype(np.float64) for r in regions])
-        static = static_field(profiles, positions, extents, polarity, cfg.min_baseline)
-        if static is None:
-            return
-        self._half = 0.5 * float(np.nanpercentile(extents, 10) if start is None
-                                 or len(start) < 4 else start[3])
-        f = self.exposure_fraction
-        kernels = (motion_kernels(positions, f) if start is None
-                   else np.array(start[1], dtype=float))
-        solver = PlateSolver(profiles, static, 1.0 if self.polarity == 'dark' else -1.0)
-        reach = self._half + cfg.pad_px
-        rounds = SMEAR_ROUNDS if self._motion else ROUNDS
-        rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED, self.exposure_fraction)
-        if solver.plate is None:
-            return
-        center = solver.plate.mark_center(reach)
-        if not math.isfinite(center):
-            return
-        longest = float(np.nanmax(solver.kernels[:, 0])) if np.any(
-            np.isfinite(solver.kernels[:, 0])) else 0.0
-        if self._motion is None:
-            longest = min(longest, cfg.max_blur_px)
-        local = solver.plate.local(center, reach + 8.0 + longest + 16.0)
-        self.plate = local
-        self._full, self._shift = solver.plate, center
-        c = local.center
-        near = int(reach)
-        peak = c - near + int(np.argmax(local.values[c - near:c + near + 1]))
-        lo, hi = dip_extent(local.values, peak, 0.25 * float(local.values[peak]),
-                            int(cfg.merge_gap_px))
-        self._outer = max(float(c - lo), float(hi - c), reach)
-        # The whole mark, its faint parts too (a cross's long arm): the rows' guard's window.
-        lo, hi = dip_extent(local.values, peak, WHOLE_LEVEL * float(local.values[peak]))
-        self._whole = max(float(c - lo), float(hi - c), self._outer)
-        self.static = solver.static
-        self._rms = float(np.median(rms)) if len(rms) else 1.0
+        learned = learn_plate(regions, self.polarity, self.config, self.exposure_fraction,
+                              self._motion is not None, start)
+        if learned is None:
+            self.plate = None
+        else:
+            self._use(learned)
+
+    def _use(self, learned: LearnedPlate) -> None:
+        """Measure with the plate ``learned`` from now on."""
+        self.plate, self._full, self._shift = learned.plate, learned.full, learned.shift
+        self._half, self._outer, self._whole = learned.half, learned.outer, learned.whole
+        self.weights, self.static, self.flat = learned.weights, learned.static, learned.flat
+        self._rms = learned.rms
 
     def _deficit(self, profile, center=math.nan, extent=0.0, kernel=None):
         """Return the deficit against the static field and this frame's light; None if dark.
@@ -490,7 +446,6 @@ class PlateMarkTracker:
             return found
         # The learned plate (see the module).
         cfg = self.config
-        w = self.roi[2]
         region = self._region(frame)
         if self.flat is not None:
             region = region / self.flat
@@ -512,7 +467,6 @@ class PlateMarkTracker:
             kernel = (abs(prediction.following - prediction.previous) / 2.0 * f,
                       (prediction.following - 2 * prediction.column + prediction.previous)
                       * f * f / 2.0)
-        reach = self._half + cfg.pad_px
         gated = prediction if prediction is not None and math.isfinite(prediction.spread) \
             else None
         if gated is not None:
@@ -522,15 +476,37 @@ class PlateMarkTracker:
             d = self._deficit(profile, math.nan, 0.0)
         if d is None:
             return self._invalid('too dark')
-        found = self._search(d, gated, kernel)
-        if found is None:
-            return self._invalid('mark at the ROI edge')
+        failure = None
+        for found in self._search(d, gated, kernel):
+            # A next-best match refused leaves no trace in the guards (the best's does, as ever)
+            saved = None if failure is None else (copy.deepcopy(self._gains), len(
+                self._guard.log or ()))
+            outcome = self._fit_found(profile, region, d, found, gated, lost)
+            if isinstance(outcome, MarkMeasurement):
+                return outcome
+            if saved is None:
+                failure = outcome
+            else:
+                self._gains = saved[0]
+                if self._guard.log is not None:
+                    del self._guard.log[saved[1]:]
+        return self._invalid(*(failure or ('mark at the ROI edge',)))
+
+    def _fit_found(self, profile, region, d, found, gated, lost):
+        """Fit the plate where the search found it and check the fit (see the module).
+
+        Returns the MarkMeasurement, or why not: (reason, quality, contrast) for ``_invalid``.
+        """
+        cfg, plate, w = self.config, self.plate, self.roi[2]
+        assert plate is not None
+        reach = self._half + cfg.pad_px
         start, blur, curve = found
-        if gated is None:
+        if gated is None or abs(start - gated.column) > RELIGHT:
+            # The light fitted beside where the mark is (not where it was predicted)
             d = self._deficit(profile, start, self._span(blur, (blur, curve)),
                               (blur, curve))
             if d is None:
-                return self._invalid('too dark')
+                return ('too dark', 0.0, math.nan)
         size = plate.size
         window, valid, j0 = grid_window(d, start, size, size // 2)
         fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0,
@@ -544,8 +520,15 @@ class PlateMarkTracker:
                 other = plate.fit(window, valid, d0, b0, c0, reach + 8.0, best=True)
                 if other is not None and (fit is None or other[5] < fit[5]):
                     fit = other
+        if fit is not None and fit[5] > tolerance * self._rms and self.texture < TEXTURE_SCORE:
+            # Something passing beside the mark: fitted without the columns it darkens. On a
+            # plain plate only (on a speckle a whole-frame smear's fit is often worse than that:
+            # speckle_full's stator went 0.099 -> 0.106 px RMS).
+            clear = plate.fit_clear(window, valid, fit, reach + 8.0, self._rms)
+            if clear is not None and clear[5] < fit[5]:
+                fit = clear
         if fit is None:
-            return self._invalid('no match')
+            return ('no match', 0.0, math.nan)
         delta, blur, curve, gain, _, rms, sigma, sigma_gain = fit
         position = delta + j0 + plate.center
         peak = gain * float(plate.values.max())
@@ -556,16 +539,18 @@ class PlateMarkTracker:
                                                      and self.texture < TEXTURE_SCORE)
         moved = 4.0 + SMEAR_MOVE * blur if smeared else 4.0
         if abs(position - start) > moved or not math.isfinite(position):
-            return self._invalid('no match', contrast=peak)
+            return ('no match', 0.0, peak)
         if lost and rms > REACQUIRE_MATCH * self._rms:  # after a loss: maybe a false match
-            return self._invalid('no match', contrast=peak)
+            return ('no match', 0.0, peak)
         if first < 1 or last > w - 2:
-            return self._invalid('mark at the ROI edge', contrast=peak)
-        if self._hidden(region, *(position + e for e in path_range(blur, curve, self._whole))):
-            return self._invalid('mark partly hidden', contrast=peak)
+            return ('mark at the ROI edge', 0.0, peak)
+        around = path_range(blur, curve, self._whole)
+        if self._guard.hidden(region, position + around[0], position + around[1],
+                              self.polarity or 'dark'):
+            return ('mark partly hidden', 0.0, peak)
         reference = self._gains.judge(gain)  # core.tracking.gains: None if it jumped
         if reference is None:
-            return self._invalid('mark area changed', contrast=peak)
+            return ('mark area changed', 0.0, peak)
         # The gain's own noise widens the tolerance (a faint mark's gain is noisy).
         tolerance = math.hypot(cfg.area_tolerance, 3.0 * sigma_gain / reference)
         q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / tolerance) ** 2)
@@ -576,7 +561,7 @@ class PlateMarkTracker:
         quality = q_snr * q_gain * q_match
         if quality < cfg.min_quality or snr < cfg.min_snr:
             reason = 'mark area changed' if min(q_gain, q_match) < q_snr else 'low contrast'
-            return self._invalid(reason, quality, contrast=peak)
+            return (reason, quality, peak)
         self._predictor.add(position)
         self._kernel = (blur, curve)
         return MarkMeasurement(position + self.roi[0] + self._offset, quality,
@@ -608,34 +593,15 @@ class PlateMarkTracker:
         self.revised = found[:-1]
         return found[-1]
 
-    def _hidden(self, region, first, last) -> bool:
-        """Return True if the rows of the whole mark (columns first..last) depart from its own.
-
-        A plain plate's guard, as the centroid tracker's: something over some of the mark's
-        rows (a ball, a shadow) changes its depth there. Logs them while priming (``_row_log``).
-        """
-        if self._row_log is None and self._band is None:
-            return False
-        own = row_weights(region, int(first), int(last), int(self.config.pad_px),
-                          self.polarity or 'dark')
-        if self._row_log is not None:
-            if own is not None:
-                self._row_log.append(own)
-            return False
-        if own is None or self._rows is None or self._band is None:
-            return own is None
-        part = own[self._rows]
-        part = part / max(float(part.sum()), 1e-12)
-        return float(np.abs(part - self._band).sum()) > self._row_tolerance
-
     def _search(self, d, prediction, kernel):
-        """Return (column, blur, curve): the best match of the smeared plate, or None.
+        """Return the (column, blur, curve) to fit the plate at: the best match first.
 
-        Gated around the prediction (one kernel, the predicted one) when there is one, else
-        over the whole ROI with a bank of kernels (``search_kernels``).
+        Gated around the prediction (one kernel, the predicted one) when there is one: that
+        match. Else over the whole ROI with a bank of kernels (``search_kernels``): the best
+        ``CANDIDATES`` matches. Empty if the gate is outside the ROI.
         """
         if self.plate is None:
-            return None
+            return []
         if prediction is not None:
             gate = 6.0 * prediction.spread + 3.0
             lo = int(math.floor(prediction.column - gate))
@@ -647,8 +613,9 @@ class PlateMarkTracker:
                                      kernel)
         lo, hi = max(lo, 0), min(hi, d.size)
         if hi <= lo:
-            return None
-        return match_plate(self.plate, d, lo, hi, kernels, self._half + self.config.pad_px)
+            return []
+        return match_plate(self.plate, d, lo, hi, kernels, self._half + self.config.pad_px,
+                           1 if prediction is not None else CANDIDATES)
 
     def _invalid(self, reason, quality=0.0, contrast=math.nan):
         self._predictor.add(math.nan)

@@ -15,6 +15,9 @@ from microball_ros.core.tracking.template import SEGMENTS, kernel_spectrum, tuke
 UPSAMPLE = 8  # the plate model's grid: 1/8 px
 ASYMMETRY_MOVE = 1.0  # px: PlateModel.mark_center's edges that far from the centre of symmetry
 ASYMMETRY_GAIN = 3.0  # ... and D that much less symmetric about them: the symmetry wins
+# PlateModel.fit_clear: columns off the fit by CLIP noise are left out, in at most
+# CLEAR_ROUNDS rounds, while those left keep CLEAR_INFORMATION of the position's information
+CLIP, CLEAR_ROUNDS, CLEAR_INFORMATION = 4.0, 8, 0.5
 
 _U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
 _U2 = _U * _U - 1.0 / 12.0
@@ -325,6 +328,35 @@ class PlateModel:
         sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
         sigma_gain = math.sqrt(max(float(covariance[1, 1]) * variance, 0.0))
         return (delta, blur, curve, gain, offset, math.sqrt(variance), sigma, sigma_gain)
+
+    def fit_clear(self, window, valid, fit, reach, noise):
+        """Return ``fit`` again without the columns something beside the mark darkens.
+
+        Something passing near the mark (a particle) adds to the deficit in some of the fit's
+        columns and spoils the whole fit (gain, offset and position). The columns off the fit
+        by more than ``CLIP`` times ``noise`` and half the worst, with their neighbours, are
+        left out and the fit repeated, at most ``CLEAR_ROUNDS`` times. None if the columns
+        left hold under ``CLEAR_INFORMATION`` of the position's information (the model's
+        squared slope; a mark half covered is not measured on what is left) or a fit fails.
+        """
+        kept = np.array(valid, dtype=bool)
+        for _ in range(CLEAR_ROUNDS):
+            delta, blur, curve, gain, offset = fit[:5]
+            model, slope = self.model(delta, blur, curve, slope=True)
+            near = kept & (np.abs(self.grid - delta) <= reach + 0.5 * blur + 0.25 * abs(curve))
+            miss = np.where(near, np.abs(window - offset - gain * model), 0.0)
+            worst = float(miss.max())
+            if worst <= CLIP * noise:
+                break
+            off = np.convolve(miss > max(CLIP * noise, 0.5 * worst), np.ones(3), 'same') > 0
+            information = float((slope[near] ** 2).sum())
+            kept &= ~off
+            if not float((slope[near & kept] ** 2).sum()) >= CLEAR_INFORMATION * information:
+                return None
+            fit = self.fit(window, kept, delta, blur, curve, reach, best=True)
+            if fit is None:
+                return None
+        return fit
 
     def fit_many(self, windows, valids, deltas, blurs, curves, reach, iterations=8):
         """Return ``fit`` of several frames (rows of ``windows``, ``valids``), batched.

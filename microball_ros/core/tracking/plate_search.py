@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+from scipy.signal import find_peaks
 
 from microball_ros.core.tracking.plate_model import PlateModel
 from microball_ros.core.tracking.search import peak_offset
@@ -29,16 +30,20 @@ def search_kernels(motion, blurs: bool, kernel=None) -> list[tuple[float, float]
     return kernels + ([kernel] if kernel is not None else [])
 
 
-def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, reach: float):
-    """Return (column, blur, curve): the best match of the smeared plate in ``d``, or None.
+def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, reach: float,
+                count: int = 1) -> list[tuple[float, float, float]]:
+    """Return up to ``count`` (column, blur, curve): the best matches of the smeared plate.
 
     Columns ``lo`` to ``hi`` (exclusive) of the deficit ``d`` are candidate centres; each
     (blur, curve) of ``kernels`` smears the plate's part within ``reach`` plus the kernel's
-    half-length of its origin. Score: correlation over the model's norm, the best column
-    refined by a parabola through its neighbours' scores.
+    half-length of its origin. Score: correlation over the model's norm, a column refined by a
+    parabola through its neighbours' scores. The best first; then, with ``count`` > 1, the
+    next-best peaks of any kernel's score, ``reach`` px from those before (something darker
+    than the mark passing near it scores higher than the mark). Empty if no kernel has a norm.
     """
     c = plate.center
     best = None
+    scores = []
     for blur, curve in kernels:
         core = min(int(math.ceil(reach + 0.5 * blur + 0.25 * abs(curve))) + 2, c - 1)
         template = plate.model(0.0, blur, curve)[c - core:c + core + 1]
@@ -49,10 +54,23 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
         a, b = lo - core, hi + core
         padded[max(a, 0) - a:min(b, d.size) - a] = d[max(a, 0):min(b, d.size)]
         score = np.correlate(padded, template, mode='valid') / norm
+        scores.append((score, blur, curve))
         k = int(np.argmax(score))
         if best is None or score[k] > best[0]:
             best = (float(score[k]), lo + k + peak_offset(score, k), blur, curve)
-    return None if best is None else best[1:]
+    if best is None:
+        return []
+    found = [best[1:]]
+    if count > 1:
+        peaks = [(float(score[k]), int(k), score, blur, curve) for score, blur, curve in scores
+                 for k in find_peaks(score, distance=max(int(reach), 1))[0]]
+        for _, k, score, blur, curve in sorted(peaks, key=lambda peak: -peak[0]):
+            if len(found) == count:
+                break
+            column = lo + k + peak_offset(score, k)
+            if all(abs(column - other[0]) >= reach for other in found):
+                found.append((column, blur, curve))
+    return found
 
 
 def plate_level(full: PlateModel | None, s: float, sign: float, kernel,

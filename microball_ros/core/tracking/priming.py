@@ -27,6 +27,9 @@ MIN_FLAT_GAIN = 0.5
 HARMONICS = 4
 SHAPE_FRAMES = 5  # deep_rows: the least smeared frames it looks at
 MISFIT = 2.0  # steadier: a motion fit missing by more than this many standard errors
+# agreeing: frames where two tracks differ by DISAGREE robust spreads of their difference
+# (at most ODD of the frames: else they are not told from the rest) are left out
+DISAGREE, ODD = 6.0, 0.25
 # steadier: the two tracks' difference within AGREE times what their standard errors allow,
 # plus SLACK of the first's variance (measured 0.8-1.2 on plates that track better, 1.4-1.6
 # at most; 2.0-3.1 where the plate tracks worse: a whole-frame exposure, a bright blob).
@@ -146,6 +149,29 @@ def motion_jitter(tracks: list[np.ndarray], harmonics: int = HARMONICS) -> list[
                                   method='bounded', options={'xatol': 1e-8}).x)
     dof = max(t.size - parameters - 1, 1)
     return [math.sqrt(float(r @ r) / dof) for r in (residuals(omega, y) for y in data)]
+
+
+def agreeing(tracks: list[np.ndarray]) -> np.ndarray:
+    """Return the frames where two tracks (NaN: none) both have a position and agree.
+
+    Something passing over the plate (a particle) can pull one tracker's positions in a few
+    frames by many times their usual difference: those frames, over ``DISAGREE`` robust
+    spreads (MAD) of the difference off its median, are left out if they are at most ``ODD``
+    of the frames both have (then they tell who is better no more; a bias that follows the
+    motion changes the difference smoothly and stays in).
+    """
+    both = np.all(np.isfinite(np.array(tracks, dtype=float)), axis=0)
+    if np.count_nonzero(both) < 8:
+        return both
+    difference = tracks[0][both] - tracks[1][both]
+    middle = float(np.median(difference))
+    spread = 1.4826 * float(np.median(np.abs(difference - middle)))
+    odd = np.abs(difference - middle) > DISAGREE * max(spread, 1e-6)
+    if np.count_nonzero(odd) > ODD * difference.size:
+        return both
+    agree = both.copy()
+    agree[np.flatnonzero(both)[odd]] = False
+    return agree
 
 
 def steadier(tracks: list[np.ndarray], sigmas: list[np.ndarray], margin: float,

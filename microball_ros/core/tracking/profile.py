@@ -18,12 +18,17 @@ import math
 
 import cv2
 import numpy as np
+from scipy.ndimage import label
 
 LIGHT_ORDER = 2  # light_level: the light per frame over the ROI, a polynomial of this degree
 LIGHT_FLANK = 48.0  # light_level's flank while tracking: px on either side of the mark
 ONE_SIDE = 24  # light_level: a flank this long alone gives the light's slope (an ROI's end)
+SUSPECT = 3.0  # light_level: a fit scattering this many times the noise is started again
 
 MAD_TO_SIGMA = 1.4826
+# disturbed: runs of this many plate columns this many noise spreads off the plate, whose
+# departure is under LOCAL of theirs CLOSE px beyond them on both sides (a bump, not a trend)
+DISTURBED_RUN, DISTURBED_SPREADS, LOCAL, CLOSE = 4, 6.0, 0.25, (3, 8)
 
 
 def column_profile(region: np.ndarray) -> np.ndarray:
@@ -137,16 +142,18 @@ def relative_deficit(profile: np.ndarray, baseline: np.ndarray, polarity: str) -
 
 
 def row_weights(region: np.ndarray, lo: int, hi: int, pad: int,
-                polarity: str) -> np.ndarray | None:
+                polarity: str, sides: tuple[bool, bool] = (True, True)) -> np.ndarray | None:
     """Return weights per ROI row proportional to the mark's depth in it (sum 1), or None.
 
     The depth of a row is its mean over the mark (columns ``lo - pad`` .. ``hi + pad``)
-    against its mean over flanks on both sides; None if there are no flanks or no depth.
+    against its mean over flanks on both sides (``sides``: the left one, the right one); None
+    if there are no flanks or no depth.
     """
     w = region.shape[1]
     a, b = max(lo - pad, 0), min(hi + pad + 1, w)
     flank = max(8, (b - a) // 4)
-    left, right = region[:, max(a - flank, 0):a], region[:, b:b + flank]
+    left = region[:, max(a - flank, 0):a if sides[0] else max(a - flank, 0)]
+    right = region[:, b:b + flank if sides[1] else b]
     if left.shape[1] + right.shape[1] == 0 or b <= a:
         return None
     outside = (left.sum(axis=1, dtype=np.float64) + right.sum(axis=1, dtype=np.float64)) / (
@@ -207,6 +214,41 @@ def deficit_noise(deficit: np.ndarray, keep: np.ndarray) -> float:
     return max(MAD_TO_SIGMA * mad / math.sqrt(6.0), 1e-6)
 
 
+def disturbed(deficit: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Return the columns of the plain plate ``keep`` that something else darkens or lights.
+
+    A particle or a shadow over the plate away from the mark bends a baseline fitted to it:
+    the mark's deficit, its area and its centroid change. Its columns are the runs of at least
+    ``DISTURBED_RUN`` columns of ``keep`` off the deficit's median there by more than
+    ``DISTURBED_SPREADS`` times the noise (``deficit_noise``) and than half the largest such
+    departure, that are local: ``CLOSE`` px beyond either end the plate (kept columns) departs
+    under ``LOCAL`` as much. A baseline that cannot follow the plate near the ROI's ends
+    departs smoothly, or at an end: it is left as it is. Widened by 2 columns.
+    """
+    off = np.zeros(deficit.size, dtype=bool)
+    if np.count_nonzero(keep) < 12:
+        return off
+    departure = np.where(keep, np.abs(deficit - float(np.median(deficit[keep]))), 0.0)
+    worst, limit = float(departure.max()), DISTURBED_SPREADS * deficit_noise(deficit, keep)
+    if not worst > limit:
+        return off
+    runs, count = label(departure > max(limit, 0.5 * worst))
+    near, far = CLOSE
+    for run in range(1, count + 1):
+        columns = np.flatnonzero(runs == run)
+        first, last = int(columns[0]), int(columns[-1])
+        if columns.size < DISTURBED_RUN:
+            continue
+        sides = [np.arange(first - far, first - near + 1), np.arange(last + near, last + far + 1)]
+        sides = [side[(side >= 0) & (side < keep.size)] for side in sides]
+        sides = [side[keep[side]] for side in sides]
+        peak = float(departure[first:last + 1].max())
+        if all(side.size >= 3 and float(departure[side].max()) < LOCAL * peak
+               for side in sides):
+            off[max(first - 2, 0):last + 3] = True
+    return off & keep
+
+
 def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
                 extent: float = 0.0, order: int | None = None,
                 flank: float | None = None) -> np.ndarray | None:
@@ -239,6 +281,32 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
             least = 12
         if np.count_nonzero(keep) < least:
             keep = np.ones(w, dtype=bool)
+    found = _fit_light(ratio, u, keep, order, sign, math.isfinite(center), least)
+    if found is None or not math.isfinite(center):
+        return None if found is None else found[0]
+    # Something large over a flank (a particle) can tilt the first fit so far that its
+    # columns do not stand out of the others': the fit then scatters far more than the noise.
+    # It starts again from the columns near the median, and is kept if it scatters half as much.
+    level, kept, spread = found
+    ends = keep & np.roll(keep, 1) & np.roll(keep, -1)  # second differences within a flank
+    if not spread > SUSPECT * deficit_noise(sign * (1.0 - ratio / level), ends):
+        return level
+    middle = float(np.median(ratio[keep]))
+    near = keep & (np.abs(ratio - middle) <= 4.0 * MAD_TO_SIGMA * float(
+        np.median(np.abs(ratio[keep] - middle))))
+    if np.count_nonzero(near) < least:
+        return level
+    other = _fit_light(ratio, u, near, order, sign, True, least)
+    return other[0] if other is not None and other[2] < 0.5 * spread else level
+
+
+def _fit_light(ratio, u, keep, order, sign, centred, least):
+    """Return ``light_level``'s fit (level, columns kept, their spread); None if dark.
+
+    Fitted on ``keep``, then again without the columns far off the fit (``centred``: any;
+    else those in a dip), at most 3 times.
+    """
+    keep = keep.copy()
     for _ in range(3):
         level = np.polyval(np.polyfit(u[keep], ratio[keep], order), u)
         if not level.min() > 0:
@@ -247,10 +315,10 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
         # the plate) are left out, and the light fitted again.
         d = sign * (1.0 - ratio / level)
         middle = float(np.median(d[keep]))
-        spread = 1.4826 * float(np.median(np.abs(d[keep] - middle)))
-        inside = np.abs(d - middle) <= 4.0 * spread if math.isfinite(center) else (
+        spread = MAD_TO_SIGMA * float(np.median(np.abs(d[keep] - middle)))
+        inside = np.abs(d - middle) <= 4.0 * spread if centred else (
             d < middle + 3.0 * spread)
         if np.count_nonzero(keep & inside) < least or np.all(inside[keep]):
             break
         keep &= inside
-    return level
+    return level, keep, spread

@@ -1,0 +1,110 @@
+"""Learning one plate from the priming frames (core.tracking.plate's step 1): ``learn_plate``.
+
+From the ROI images of the priming frames it learns the row weights (the mark's depth per row,
+in the rows it is deep in), the static field with each frame's light, and (``PlateSolver``)
+the plate's deficit ``D`` with each frame's position and motion kernel; ``D``'s origin is then
+moved to the mark's centre (``PlateModel.mark_center``). What it learned is a ``LearnedPlate``,
+which the tracker keeps or drops as a whole.
+"""
+
+from dataclasses import dataclass
+import math
+
+import numpy as np
+
+from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.plate_model import PlateModel
+from microball_ros.core.tracking.plate_solver import PlateSolver, motion_kernels
+from microball_ros.core.tracking.priming import deep_rows, first_positions, static_field
+from microball_ros.core.tracking.profile import row_weights
+from microball_ros.core.tracking.search import dip_extent
+
+ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
+SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
+WHOLE_LEVEL = 0.05  # of D's peak: the whole mark, for the rows' guard of a plain plate
+
+
+@dataclass
+class LearnedPlate:
+    """A plate learned from the priming frames (the tracker's, see core.tracking.plate).
+
+    ``plate``: ``D`` near the mark, its origin at the mark's centre; ``full``: the whole
+    plate seen through the ROI, ``shift`` px from that centre; ``half``: the mark's half-width
+    (its least smeared extent); ``outer`` / ``whole``: its reach in ``D`` at a quarter and at
+    ``WHOLE_LEVEL`` of its depth (px); ``weights``: per ROI row (sum 1); ``static``: the
+    static field per ROI column; ``rms``: the median residual of the frames' fits; ``flat``:
+    the row flat field the ROI was divided by (None: none).
+    """
+
+    plate: PlateModel
+    full: PlateModel
+    shift: float
+    half: float
+    outer: float
+    whole: float
+    weights: np.ndarray
+    static: np.ndarray
+    rms: float
+    flat: np.ndarray | None = None
+
+
+def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction: float,
+                long_smear: bool = False, start=None) -> LearnedPlate | None:
+    """Learn row weights, static field and plate from the ROI images ``regions``; None: failed.
+
+    ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
+    instead of the dip centroids and kernels from neighbouring frames; a long smear's
+    (core.tracking.smear.smear_start, ``long_smear``) brings the extents and half-width too.
+    """
+    cfg = config
+    positions, extents = first_positions(regions, polarity, cfg)
+    if start is not None and len(start) > 2:  # a long smear: the extents come with it
+        positions, extents = (np.array(v, dtype=float) for v in (start[0], start[2]))
+    elif start is not None:
+        positions = np.array(start[0], dtype=float)
+        typical = float(np.nanmedian(extents)) if np.any(np.isfinite(extents)) else 0.0
+        extents = np.where(np.isfinite(extents), extents, typical)
+    found = [row_weights(r, int(p - e / 2), int(p + e / 2), cfg.pad_px, polarity)
+             for r, p, e in zip(regions, positions, extents, strict=True)
+             if math.isfinite(p)]
+    each = [v for v in found if v is not None]
+    if not each:
+        return None
+    deep = deep_rows(regions, positions, extents, polarity, exposure_fraction,
+                     None if start is None else start[1])
+    median = np.median(each, axis=0)
+    weights = median * deep if deep is not None and (median * deep).sum() > 0 else median
+    weights /= max(float(weights.sum()), 1e-12)
+    profiles = np.array([weights @ r.astype(np.float64) for r in regions])
+    static = static_field(profiles, positions, extents, polarity, cfg.min_baseline)
+    if static is None:
+        return None
+    half = 0.5 * float(np.nanpercentile(extents, 10) if start is None
+                       or len(start) < 4 else start[3])
+    kernels = (motion_kernels(positions, exposure_fraction) if start is None
+               else np.array(start[1], dtype=float))
+    solver = PlateSolver(profiles, static, 1.0 if polarity == 'dark' else -1.0)
+    reach = half + cfg.pad_px
+    rounds = SMEAR_ROUNDS if long_smear else ROUNDS
+    rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED, exposure_fraction)
+    if solver.plate is None:
+        return None
+    center = solver.plate.mark_center(reach)
+    if not math.isfinite(center):
+        return None
+    longest = float(np.nanmax(solver.kernels[:, 0])) if np.any(
+        np.isfinite(solver.kernels[:, 0])) else 0.0
+    if not long_smear:
+        longest = min(longest, cfg.max_blur_px)
+    local = solver.plate.local(center, reach + 8.0 + longest + 16.0)
+    c = local.center
+    near = int(reach)
+    peak = c - near + int(np.argmax(local.values[c - near:c + near + 1]))
+    lo, hi = dip_extent(local.values, peak, 0.25 * float(local.values[peak]),
+                        int(cfg.merge_gap_px))
+    outer = max(float(c - lo), float(hi - c), reach)
+    # The whole mark, its faint parts too (a cross's long arm): the rows' guard's window.
+    lo, hi = dip_extent(local.values, peak, WHOLE_LEVEL * float(local.values[peak]))
+    whole = max(float(c - lo), float(hi - c), outer)
+    return LearnedPlate(local, solver.plate, center, half, outer, whole, weights,
+                        solver.static, float(np.median(rms)) if len(rms) else 1.0)
