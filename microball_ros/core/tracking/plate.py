@@ -534,10 +534,11 @@ class PlateMarkTracker:
         peak = gain * float(plate.values.max())
         first, last = (position + end for end in path_range(blur, curve, self._half + EDGE_PX))
         # A smear on a known motion may move further from the search's start; so may one
-        # searched without a prediction on a plain plate (nothing else there to match).
+        # searched without a prediction on a plain plate (nothing else there to match), and
+        # one found by a long kernel (its match is as long, wherever the fit ends).
         smeared = self._motion or self._periodic or (gated is None
                                                      and self.texture < TEXTURE_SCORE)
-        moved = 4.0 + SMEAR_MOVE * blur if smeared else 4.0
+        moved = 4.0 + SMEAR_MOVE * max(blur, found[1]) if smeared else 4.0
         if abs(position - start) > moved or not math.isfinite(position):
             return ('no match', 0.0, peak)
         if lost and rms > REACQUIRE_MATCH * self._rms:  # after a loss: maybe a false match
