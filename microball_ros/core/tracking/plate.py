@@ -412,7 +412,8 @@ class PlateMarkTracker:
         if self._full is not None and math.isfinite(center):  # the learned plate, smeared
             plate = ratio / plate_level(self._full, center - self._shift, sign, kernel, w)
         level = light_level(plate, self.polarity, center, extent,
-                            flank=LIGHT_FLANK if math.isfinite(center) else None)
+                            flank=LIGHT_FLANK if math.isfinite(center) else None,
+                            noise=self._rms)
         if level is None:
             return None
         return sign * (1.0 - ratio / level)
@@ -481,7 +482,8 @@ class PlateMarkTracker:
             # A next-best match refused leaves no trace in the guards (the best's does, as ever)
             saved = None if failure is None else (copy.deepcopy(self._gains), len(
                 self._guard.log or ()))
-            outcome = self._fit_found(profile, region, d, found, gated, lost)
+            outcome = self._fit_found(profile, region, d, found, gated, lost,
+                                      restart=failure is None)
             if isinstance(outcome, MarkMeasurement):
                 return outcome
             if saved is None:
@@ -492,10 +494,11 @@ class PlateMarkTracker:
                     del self._guard.log[saved[1]:]
         return self._invalid(*(failure or ('mark at the ROI edge',)))
 
-    def _fit_found(self, profile, region, d, found, gated, lost):
+    def _fit_found(self, profile, region, d, found, gated, lost, restart=True):
         """Fit the plate where the search found it and check the fit (see the module).
 
         Returns the MarkMeasurement, or why not: (reason, quality, contrast) for ``_invalid``.
+        ``restart``: a poor fit is restarted from all ``RESTART_BLURS`` (else from the first).
         """
         cfg, plate, w = self.config, self.plate, self.roi[2]
         assert plate is not None
@@ -515,7 +518,8 @@ class PlateMarkTracker:
         if fit is None or fit[5] > tolerance * self._rms:
             # A false minimum (short kernels' blur and curvature are hardly separable), or the
             # steps ran out (a turning point): go on from there, restart from short kernels.
-            starts = [(start - j0 - plate.center, b, 0.0) for b in RESTART_BLURS]
+            starts = [(start - j0 - plate.center, b, 0.0)
+                      for b in (RESTART_BLURS if restart else RESTART_BLURS[:1])]
             for d0, b0, c0 in starts if fit is None else [fit[:3], *starts]:
                 other = plate.fit(window, valid, d0, b0, c0, reach + 8.0, best=True)
                 if other is not None and (fit is None or other[5] < fit[5]):

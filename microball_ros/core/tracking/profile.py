@@ -251,7 +251,7 @@ def disturbed(deficit: np.ndarray, keep: np.ndarray) -> np.ndarray:
 
 def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
                 extent: float = 0.0, order: int | None = None,
-                flank: float | None = None) -> np.ndarray | None:
+                flank: float | None = None, noise: float | None = None) -> np.ndarray | None:
     """Return this frame's light over a profile divided by the static field; None if dark.
 
     The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
@@ -262,7 +262,9 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     far beyond ``extent`` on either side are used, and the light is a straight line across
     the mark; when one side is missing (an ROI's end), a line through the other if it holds
     ``ONE_SIDE`` columns (a light gradient: a textured mark 5 px from the ROI's end lost 9 of
-    240 frames with a constant), else a constant.
+    240 frames with a constant), else a constant. With a centre, a fit that scatters over
+    ``SUSPECT`` times the ``noise`` per column (if not given, from the second differences in
+    the flanks) is started again from the columns near the median (a particle over a flank).
     """
     sign = 1.0 if polarity == 'dark' else -1.0
     order = LIGHT_ORDER if order is None else int(order)
@@ -288,8 +290,10 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     # columns do not stand out of the others': the fit then scatters far more than the noise.
     # It starts again from the columns near the median, and is kept if it scatters half as much.
     level, kept, spread = found
-    ends = keep & np.roll(keep, 1) & np.roll(keep, -1)  # second differences within a flank
-    if not spread > SUSPECT * deficit_noise(sign * (1.0 - ratio / level), ends):
+    if noise is None:
+        ends = keep & np.roll(keep, 1) & np.roll(keep, -1)  # second differences in a flank
+        noise = deficit_noise(sign * (1.0 - ratio / level), ends)
+    if not spread > SUSPECT * noise:
         return level
     middle = float(np.median(ratio[keep]))
     near = keep & (np.abs(ratio - middle) <= 4.0 * MAD_TO_SIGMA * float(
