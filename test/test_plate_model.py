@@ -127,3 +127,29 @@ def test_a_fit_whose_steps_swing_returns_the_best_point_it_reached():
     scatter = {name: float(np.std(g)) for name, g in gains.items()}
     assert scatter['best'] < 1.2 * scatter['truth'], scatter
     assert scatter['last'] > 2.0 * scatter['truth'], scatter
+
+
+def test_fit_clear_fits_the_mark_without_a_particle_beside_it():
+    # A frame of the model (gain 0.8, noise 0.002) with a particle's dip (0.3 deep, 10 px
+    # wide) 22 px beside the mark, inside the fit's reach (30 px): the plain fit is pulled off
+    # and scatters over 10 times the noise; fitted without the columns the particle darkens,
+    # it is the truth's.
+    model = plate()
+    truth = (0.3, 4.0, 0.0)
+    windows, valids = frames(model, [truth], noise=0.002)
+    window, valid = windows[0], valids[0]
+    u = model.grid - truth[0]
+    window = window + 0.3 * np.clip(5.5 - np.abs(u - 22.0), 0.0, 1.0)
+    fit = model.fit(window, valid, 0.5, 4.0, 0.0, 30.0, best=True)
+    assert fit is not None and fit[5] > 10 * 0.002 and abs(fit[0] - truth[0]) > 0.05
+    clear = model.fit_clear(window, valid, fit, 30.0, 0.002)
+    assert clear is not None
+    assert abs(clear[0] - truth[0]) < 0.01 and abs(clear[3] - 0.8) < 0.01
+    assert clear[5] < 1.5 * 0.002
+    # Over the mark itself (its whole middle darkened) the columns left do not give the mark
+    # back: none, or a gain far from the mark's, which the tracker's gain guard refuses
+    over = window + 0.3 * np.clip(12.0 - np.abs(u), 0.0, 1.0)
+    fit = model.fit(over, valid, 0.5, 4.0, 0.0, 30.0, best=True)
+    assert fit is not None
+    clear = model.fit_clear(over, valid, fit, 30.0, 0.002)
+    assert clear is None or abs(clear[3] / 0.8 - 1.0) > 0.3
