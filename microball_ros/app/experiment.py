@@ -151,7 +151,7 @@ _READY_RECORDING = {'camera/image_raw': 1, 'tracking/positions': 3,
 # The node that writes each topic and reports, on /diagnostics, how many subscriptions its
 # writer has matched: the graph shows a subscription before the writer has matched it, and
 # what the writer publishes before that is lost (volatile QoS).
-_WRITERS = {'tracking/positions': 'camera_tracker',
+WRITERS = {'tracking/positions': 'camera_tracker',
             'estimation/derivatives': 'three_stage_estimator',
             'friction/model': 'friction_identifier'}
 
@@ -246,7 +246,7 @@ class _Monitor:
     def writers_matched(self, ready):
         """Return True once each node's writer has matched the subscriptions ready counts."""
         return all(int(self.statuses.get(node, {}).get(subscribers_key(topic), 0))
-                   >= ready.get(topic, 1) for topic, node in _WRITERS.items())
+                   >= ready.get(topic, 1) for topic, node in WRITERS.items())
 
     def _on_frame(self, msg):
         self.frames += 1

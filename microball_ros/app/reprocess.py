@@ -22,11 +22,17 @@ import tempfile
 import time
 from typing import NamedTuple
 
+from diagnostic_msgs.msg import DiagnosticArray
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
 import yaml
 
-from microball_ros.app.experiment import NodeCrashed, NodeProcesses, flatten_parameters
+from microball_ros.app.experiment import (
+    WRITERS,
+    NodeCrashed,
+    NodeProcesses,
+    flatten_parameters,
+)
 from microball_ros.app.play import Player, use_lockstep_profile
 from microball_ros.core.windowing import PositionWindower, Window, WindowSettings
 from microball_ros.io import fingerprint
@@ -34,12 +40,16 @@ from microball_ros.io.bags.reader import IMAGES_TOPIC, BagError, open_bag, recor
 from microball_ros.io.compare import BYTE_IDENTICAL, NOT_COMPARED, compare_bags
 from microball_ros.io.frames import TRACKER, tracked_frames, tracker_parameters
 from microball_ros.nodes.camera_tracker import reliable_images
+from microball_ros.nodes.common import diagnostic_values, subscribers_key
 from microball_ros.nodes.recorder import Recorder
 from microball_ros.nodes.three_stage_estimator import PARAMS as ESTIMATOR_PARAMS
 
 POSITIONS = '/tracking/positions'
 OUTPUTS = ('/estimation/derivatives', '/friction/model')
 REPROCESSED_NODES = ('three_stage_estimator', 'friction_identifier')
+# The subscriptions each node's writer must have matched before the replay starts (the
+# recorder's, and the next node's).
+READERS = {POSITIONS: 2, '/estimation/derivatives': 2, '/friction/model': 1}
 
 
 def expected_windows(samples, estimator_parameters):
@@ -138,7 +148,15 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
         rclpy.parameter.Parameter('topics', value=recorded),
         rclpy.parameter.Parameter('custom_data', value=output_custom_data(bag, parameters))])
     player = Player(bag, topics=[source], context=context)
-    for node in (recorder, player):
+    # The nodes' writers report on /diagnostics how many subscriptions they have matched: the
+    # graph shows a subscription before the writer has matched it, and what it publishes
+    # before that is lost (volatile QoS; a rare timeout of the estimates before this).
+    monitor = rclpy.create_node('microball_reprocess_monitor', context=context)
+    statuses: dict = {}
+    monitor.create_subscription(DiagnosticArray, '/diagnostics',
+                                lambda msg: statuses.update(diagnostic_values(msg)), 10)
+    writers = {name: '/' + topic for topic, name in WRITERS.items() if name in nodes}
+    for node in (recorder, player, monitor):
         executor.add_node(node)
 
     def spin_until(condition, what, progress_of=lambda: None):
@@ -164,6 +182,9 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
         spin_until(lambda: all(recorder.matched.get(t, 0) >= 1 for t in recorded
                                if t != source),
                    'the recorder to connect to the outputs')
+        spin_until(lambda: all(int(statuses.get(name, {}).get(subscribers_key(topic), 0))
+                               >= READERS[topic] for name, topic in writers.items()),
+                   "the nodes' writers to match their subscriptions")
         ready = None
         if source == IMAGES_TOPIC:
             # The tracker holds its first prime_frames frames (it learns the marks from
@@ -187,6 +208,7 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
         executor.shutdown()
         counts = recorder.close()
         player.destroy_node()
+        monitor.destroy_node()
         rclpy.shutdown(context=context)
     return counts
 
