@@ -18,6 +18,7 @@ custom_data, so it can itself be reprocessed. ``check()`` compares the reproduce
 recorded ones (microball_ros.io.compare) and names both platforms.
 """
 
+import shutil
 import tempfile
 import time
 from typing import NamedTuple
@@ -172,6 +173,7 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
     def positions_recorded():
         return recorder.counts.get(POSITIONS, 0)
 
+    completed = False
     try:
         for name in nodes:
             processes.start(name)
@@ -203,8 +205,11 @@ def reprocess(bag_path, output, progress=print, timeout=60.0, tracking=None):
                    f'{windows} estimates and models',
                    lambda: (*(recorder.counts.get(t, 0) for t in OUTPUTS),
                             positions_recorded()))
+        completed = True
     finally:
         processes.stop()
+        if completed:  # a failed run keeps its node logs: its error names them
+            shutil.rmtree(log_dir, ignore_errors=True)
         executor.shutdown()
         counts = recorder.close()
         player.destroy_node()
