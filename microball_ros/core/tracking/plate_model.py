@@ -17,7 +17,7 @@ ASYMMETRY_MOVE = 1.0  # px: PlateModel.mark_center's edges that far from the cen
 ASYMMETRY_GAIN = 3.0  # ... and D that much less symmetric about them: the symmetry wins
 # PlateModel.fit_clear: columns off the fit by CLIP noise are left out, in at most
 # CLEAR_ROUNDS rounds, while those left keep CLEAR_INFORMATION of the position's information
-CLIP, CLEAR_ROUNDS, CLEAR_INFORMATION = 4.0, 8, 0.5
+CLIP, CLEAR_ROUNDS, CLEAR_INFORMATION = 4.0, 3, 0.5
 
 _U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
 _U2 = _U * _U - 1.0 / 12.0

@@ -10,6 +10,7 @@ from microball_ros.core.tracking.search import peak_offset
 
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0, 96.0, 128.0)  # px; 128: a whole-period exposure
 CURVED = 16.0  # px: a path curved more than this (a turning point) is not a straight blur
+NEXT_GAIN = 0.3  # match_plate: a next-best match needs at least this gain
 
 
 def search_kernels(motion, blurs: bool, kernel=None) -> list[tuple[float, float]]:
@@ -31,7 +32,7 @@ def search_kernels(motion, blurs: bool, kernel=None) -> list[tuple[float, float]
 
 
 def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, reach: float,
-                count: int = 1) -> list[tuple[float, float, float]]:
+                count: int = 1, least: float = NEXT_GAIN) -> list[tuple[float, float, float]]:
     """Return up to ``count`` (column, blur, curve): the best matches of the smeared plate.
 
     Columns ``lo`` to ``hi`` (exclusive) of the deficit ``d`` are candidate centres; each
@@ -39,7 +40,9 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
     half-length of its origin. Score: correlation over the model's norm, a column refined by a
     parabola through its neighbours' scores. The best first; then, with ``count`` > 1, the
     next-best peaks of any kernel's score, ``reach`` px from those before (something darker
-    than the mark passing near it scores higher than the mark). Empty if no kernel has a norm.
+    than the mark passing near it scores higher than the mark), that match the plate at a gain
+    of ``least`` or more (the score of ``g`` times the plate is ``g`` times its norm: noise
+    peaks, as in a covered ROI, are not worth fitting). Empty if no kernel has a norm.
     """
     c = plate.center
     best = None
@@ -54,7 +57,7 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
         a, b = lo - core, hi + core
         padded[max(a, 0) - a:min(b, d.size) - a] = d[max(a, 0):min(b, d.size)]
         score = np.correlate(padded, template, mode='valid') / norm
-        scores.append((score, blur, curve))
+        scores.append((score, blur, curve, norm))
         k = int(np.argmax(score))
         if best is None or score[k] > best[0]:
             best = (float(score[k]), lo + k + peak_offset(score, k), blur, curve)
@@ -62,8 +65,10 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
         return []
     found = [best[1:]]
     if count > 1:
-        peaks = [(float(score[k]), int(k), score, blur, curve) for score, blur, curve in scores
-                 for k in find_peaks(score, distance=max(int(reach), 1))[0]]
+        peaks = [(float(score[k]), int(k), score, blur, curve)
+                 for score, blur, curve, norm in scores
+                 for k in find_peaks(score, distance=max(int(reach), 1),
+                                     height=least * norm)[0]]
         for _, k, score, blur, curve in sorted(peaks, key=lambda peak: -peak[0]):
             if len(found) == count:
                 break
