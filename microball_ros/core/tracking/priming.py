@@ -156,9 +156,9 @@ def agreeing(tracks: list[np.ndarray]) -> np.ndarray:
 
     Something passing over the plate (a particle) can pull one tracker's positions in a few
     frames by many times their usual difference: those frames, over ``DISAGREE`` robust
-    spreads (MAD) of the difference off its median, are left out if they are at most ``ODD``
-    of the frames both have (then they tell who is better no more; a bias that follows the
-    motion changes the difference smoothly and stays in).
+    spreads (MAD) of the difference off its median, are left out when they are at most ``ODD``
+    of the frames both have (more are the trackers' difference itself, not outliers; a bias
+    that follows the motion changes the difference smoothly and stays in).
     """
     both = np.all(np.isfinite(np.array(tracks, dtype=float)), axis=0)
     if np.count_nonzero(both) < 8:

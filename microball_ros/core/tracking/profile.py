@@ -289,7 +289,7 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     # Something large over a flank (a particle) can tilt the first fit so far that its
     # columns do not stand out of the others': the fit then scatters far more than the noise.
     # It starts again from the columns near the median, and is kept if it scatters half as much.
-    level, kept, spread = found
+    level, spread = found
     if noise is None:
         ends = keep & np.roll(keep, 1) & np.roll(keep, -1)  # second differences in a flank
         noise = deficit_noise(sign * (1.0 - ratio / level), ends)
@@ -301,11 +301,11 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     if np.count_nonzero(near) < least:
         return level
     other = _fit_light(ratio, u, near, order, sign, True, least)
-    return other[0] if other is not None and other[2] < 0.5 * spread else level
+    return other[0] if other is not None and other[1] < 0.5 * spread else level
 
 
 def _fit_light(ratio, u, keep, order, sign, centred, least):
-    """Return ``light_level``'s fit (level, columns kept, their spread); None if dark.
+    """Return ``light_level``'s fit (level, the spread of the columns kept); None if dark.
 
     Fitted on ``keep``, then again without the columns far off the fit (``centred``: any;
     else those in a dip), at most 3 times.
@@ -325,4 +325,4 @@ def _fit_light(ratio, u, keep, order, sign, centred, least):
         if np.count_nonzero(keep & inside) < least or np.all(inside[keep]):
             break
         keep &= inside
-    return level, keep, spread
+    return level, spread
