@@ -79,6 +79,24 @@ def test_mark_gains_refuse_a_jump_keep_the_reference_and_take_up_a_lasting_chang
     assert gains.judge(1.3) == pytest.approx(1.3)
 
 
+def _particle_passing(shape, first, frames, radius=12.0):
+    """Return (error px, particle-to-mark distance px, inf without it) per frame of a scene.
+
+    A dark particle (60 % dark) drifts through the slider's ROI in frames ``first`` to
+    ``first`` + 60 while the mark moves +-60 px at 0.25 Hz on a plain plate.
+    """
+    spec = SceneSpec(plates=plates(amplitude=60.0, frequency=0.25, shape=shape))
+    x0, _, w, _ = render(spec, 1).rois['slider']
+    passing = [('slider', first, first + 60, x0 - radius, x0 + w + radius, radius, 0.6)]
+    scene = render(spec, frames, seed=3, passing=passing)
+    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
+    n = np.arange(frames)
+    particle = x0 - radius + (w + 2 * radius) * (n - first) / 60.0
+    during = (n >= first) & (n <= first + 60)
+    gap = np.where(during, np.abs(particle - scene.truth['slider']), np.inf)
+    return result.position_px['slider'] - scene.truth['slider'], gap
+
+
 @pytest.mark.parametrize('shape, extent', [('bar', 10.0), ('cross', 10.0), ('pair', 13.0)])
 def test_a_particle_passing_a_mark_on_a_plain_plate_leaves_its_clear_frames_measured(shape,
                                                                                     extent):
@@ -88,17 +106,8 @@ def test_a_particle_passing_a_mark_on_a_plain_plate_leaves_its_clear_frames_meas
     # mark is never reported; the frames where the particle is 2 px clear of the mark are.
     # Before, 22 / 30 / 23 of them were lost: the light fitted beside the mark was tilted by
     # the particle in its flank, and after the loss the search fitted the particle.
-    spec = SceneSpec(plates=plates(amplitude=60.0, frequency=0.25, shape=shape))
-    x0, _, w, _ = render(spec, 1).rois['slider']
-    radius = 12.0
-    passing = [('slider', 80, 140, x0 - radius, x0 + w + radius, radius, 0.6)]
-    scene = render(spec, 180, seed=3, passing=passing)
-    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
-    error = result.position_px['slider'] - scene.truth['slider']
-    n = np.arange(180)
-    particle = x0 - radius + (w + 2 * radius) * (n - 80) / 60.0
-    gap = np.where((n >= 80) & (n <= 140), np.abs(particle - scene.truth['slider']), np.inf)
-    covered, clear = gap < 0.5 * extent, gap >= radius + extent + 2.0
+    error, gap = _particle_passing(shape, 80, 180)
+    covered, clear = gap < 0.5 * extent, gap >= 12.0 + extent + 2.0
     assert np.count_nonzero(covered) >= 3 and np.count_nonzero(clear & (gap < 60)) >= 30
     assert not np.isfinite(error[covered]).any()
     assert np.count_nonzero(~np.isfinite(error[clear])) <= 0.03 * np.count_nonzero(clear)
@@ -113,17 +122,8 @@ def test_a_particle_passing_during_priming_does_not_spoil_what_is_learned():
     # frames the particle pulled kept the plate from being judged better. Now the long-smear
     # plate is kept only if it loses fewer frames, and the plate is judged on the frames where
     # the two trackers agree.
-    spec = SceneSpec(plates=plates(amplitude=60.0, frequency=0.25, shape='cross'))
-    x0, _, w, _ = render(spec, 1).rois['slider']
-    radius, extent = 12.0, 10.0
-    passing = [('slider', 40, 100, x0 - radius, x0 + w + radius, radius, 0.6)]
-    scene = render(spec, 140, seed=3, passing=passing)
-    result = track(scene.frames, scene.rois, SCALE, fps=30.0)
-    error = result.position_px['slider'] - scene.truth['slider']
-    n = np.arange(140)
-    particle = x0 - radius + (w + 2 * radius) * (n - 40) / 60.0
-    gap = np.where((n >= 40) & (n <= 100), np.abs(particle - scene.truth['slider']), np.inf)
-    covered, clear = gap < 0.5 * extent, gap >= radius + extent + 2.0
+    error, gap = _particle_passing('cross', 40, 140)
+    covered, clear = gap < 5.0, gap >= 12.0 + 10.0 + 2.0
     assert not np.isfinite(error[covered]).any()
     assert np.count_nonzero(~np.isfinite(error[clear])) <= 0.02 * np.count_nonzero(clear)
     assert np.nanmax(np.abs(error)) < 0.1
