@@ -59,7 +59,6 @@ LONG_SMEAR = 0.25
 SMEAR_THRESHOLD = 0.01
 SHORT_FIRST = 0.6
 CUT_FRACTION = 0.05
-DISTURBED_ROUNDS = 3  # something over the plate beside the mark: left out of the baseline
 LOST_FRACTION = 0.2  # priming frames lost with their own baseline: smears may be long
 SMEAR_GROWTH = 2.0  # a long smear's extent (90th percentile) over its shortest (10th)
 
@@ -380,7 +379,7 @@ class CentroidMarkTracker:
         deficit = relative_deficit(profile, baseline, polarity)
         _, _, lo, hi = locate(deficit, 0.0, 0.25, cfg.smoothing_px)
         margin = guard + (hi - lo) // 4
-        # Columns something else darkens (``disturbed``): the dips beside the mark first
+        # Columns something else darkens (``disturbed``: a dip beside the mark) stay out
         off = np.ones(w, dtype=bool)
         off[max(lo - margin, 0):hi + margin + 1] = False
         off = disturbed(deficit, off)
@@ -394,15 +393,6 @@ class CentroidMarkTracker:
             if attempt == 2:
                 break
             deficit = self._deficit(profile, keep, polarity)
-            for _ in range(DISTURBED_ROUNDS if deficit is not None else 0):
-                more = disturbed(deficit, keep)
-                if not more.any() or np.count_nonzero(keep & ~more) < 12:
-                    break
-                off |= more
-                keep &= ~more
-                deficit = self._deficit(profile, keep, polarity)
-                if deficit is None:
-                    break
             if deficit is None:
                 return self._invalid('too dark')
             _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px,
@@ -529,15 +519,11 @@ class CentroidMarkTracker:
         self._areas.append(area)
         position, sigma = refine_position(deficit, first, last, centroid, sigma_centroid, noise,
                                           x, cfg, self._previous)
-        q_snr = 1.0 - math.exp(-(snr / cfg.snr_scale) ** 2)
         # The area's own noise widens the tolerance (a faint mark's area is noisy).
         area_noise = 3.0 * noise * math.sqrt(last - first + 1) / area
-        tolerance = math.hypot(cfg.area_tolerance, area_noise)
-        q_area = math.exp(-0.5 * ((ratio - 1.0) / tolerance) ** 2)
-        quality = q_snr * q_area
+        quality, reason = cfg.quality(snr, ratio, math.hypot(cfg.area_tolerance, area_noise))
         extent = float(hi - lo + 1)
         if quality < cfg.min_quality or not math.isfinite(position):
-            reason = 'mark area changed' if q_area < q_snr else 'low contrast'
             self._previous = None
             return MarkMeasurement(float('nan'), quality, contrast=peak, extent_px=extent,
                                    reason=reason)

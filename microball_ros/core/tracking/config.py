@@ -4,9 +4,11 @@ Owns the tuning of the mark model (polarity, baseline degree), the search (smoot
 threshold, pad), the checks that reject a frame (signal-to-noise, depth, saturation, area
 history) and the sub-pixel fit (method, the motion below which a mark counts as still). It
 validates itself on construction with a one-line InputError; the stages never re-check it.
+``quality`` is the measurement quality every tracker reports, from these settings.
 """
 
 from dataclasses import dataclass
+import math
 
 from microball_ros.core.errors import InputError
 
@@ -83,3 +85,21 @@ class TrackerConfig:
                              'background_rate in (0, 1], match_tolerance > 0')
         if not 0 < self.threshold < 1 or not 0 <= self.min_quality <= 1:
             raise InputError('tracker threshold must be in (0, 1), min_quality in [0, 1]')
+
+    def quality(self, snr: float, ratio: float, tolerance: float,
+                misfit: float | None = None) -> tuple[float, str]:
+        """Return a measurement's quality in [0, 1] and why it would be refused.
+
+        Quality = (1 - exp(-(snr / snr_scale)^2)) * exp(-(ratio - 1)^2 / (2 tolerance^2))
+        * exp(-(max(misfit - match_tolerance, 0) / 0.5)^2 / 2): the signal-to-noise, the
+        mark's area or gain against the recent frames' (``ratio``), and the fit's residual in
+        units of the plate's noise (``misfit``, none: 1). The reason: 'mark area changed' when
+        the area or the fit is the poorer part, else 'low contrast'.
+        """
+        q_snr = 1.0 - math.exp(-(snr / self.snr_scale) ** 2)
+        q_ratio = math.exp(-0.5 * ((ratio - 1.0) / tolerance) ** 2)
+        q_match = 1.0
+        if misfit is not None:
+            q_match = math.exp(-0.5 * (max(misfit - self.match_tolerance, 0.0) / 0.5) ** 2)
+        reason = 'mark area changed' if min(q_ratio, q_match) < q_snr else 'low contrast'
+        return q_snr * q_ratio * q_match, reason

@@ -292,14 +292,9 @@ class LearnedMarkTracker:
             return self._invalid('mark at the ROI edge', contrast=peak)
         if self._saturated(region, position, 2 * extent, saturation, self.polarity):
             return self._invalid('saturated', contrast=peak)
-        q_snr = 1.0 - math.exp(-(snr / cfg.snr_scale) ** 2)
-        q_gain = math.exp(-0.5 * ((ratio - 1.0) / cfg.area_tolerance) ** 2)
-        excess = max(fit.rms / noise - cfg.match_tolerance, 0.0)
-        q_match = math.exp(-0.5 * (excess / 0.5) ** 2)
-        quality = q_snr * q_gain * q_match
+        quality, reason = cfg.quality(snr, ratio, cfg.area_tolerance, fit.rms / noise)
         self._gains.append(fit.gain)
         if quality < cfg.min_quality:
-            reason = 'mark area changed' if min(q_gain, q_match) < q_snr else 'low contrast'
             return self._invalid(reason, quality, contrast=peak)
         self._blur = fit.blur
         self._learn(window, valid, j0, position, fit.gain, fit.offset, extent)

@@ -24,22 +24,11 @@ the exposure's motion kernel ``K`` (core.tracking.template: a quadratic path, bl
 curvature ``Q``). A frame's deficit is ``d(x) = c + g (D * K)(x - s)`` with ``s`` the position
 averaged over the exposure. The tracker
 
-1. learns (core.tracking.plate_learn) from the priming frames the row weights (the mark's depth
-   per row, in the rows it is deep in: ``deep_rows``) and, jointly (``PlateSolver``,
-   alternating least squares), the whole plate's deficit ``D`` seen through the ROI, the static
-   field (illumination and dust fixed in the image) with each frame's light (flicker and a
-   drifting gradient: a quadratic over the ROI), and each frame's position and kernel: first
-   positions from the dip's centroid (the parts of a mark, such as two bars, joined; a gain per
-   frame divided out) and kernels from neighbouring frames, then rounds of ``D``
-   (preconditioned conjugate gradients), static field and lights (closed form), positions and
-   kernels (fits), until the fits move the positions under ``SETTLED`` px RMS (at most
-   ``ROUNDS``). ``D``'s origin is then moved to the mark's centre, the mid-point of its outer
-   edges (half-depth crossings, or the centre of symmetry if they are pixels off it:
-   ``PlateModel.mark_center``). All is learned twice: the second time from the positions and
-   kernels the first plate measures, on the ROI divided by a row flat field
-   (``row_flat_field``: a pattern fixed in the image that differs between rows) if there is
-   one; kept if it fits better. A texture moves those crossings by 0.1-0.3 px: the positions
-   are then offset to where the mark's edges, row by row, are most nearly mirror-symmetric
+1. learns from the priming frames (core.tracking.plate_learn) the row weights, the static
+   field and ``D`` with each frame's position and kernel, twice (the second time from the
+   positions the first plate measures, on a row flat field if there is one; kept if it fits
+   better); a texture moves the mark's edges by 0.1-0.3 px, so the positions are then offset
+   to where its edges, row by row, are most nearly mirror-symmetric
    (core.tracking.plate_rows.edge_offset);
 2. per frame divides the row-weighted profile by the static field and by the frame's light: a
    straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly, so that a
@@ -53,10 +42,8 @@ averaged over the exposure. The tracker
    and the ``CANDIDATES`` best matches are tried in turn (a particle near the mark matches
    better than the mark). A match ``RELIGHT`` px or more from where it was predicted (or
    without a prediction) has the light fitted again beside it;
-3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly): the texture,
-   common to data and model, is signal rather than error; a fit far worse than priming's is
-   restarted from short kernels (their blur and curvature are hardly separable), and then
-   fitted without the columns something beside the mark darkens (``PlateModel.fit_clear``);
+3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly, with fallbacks
+   for a poor fit: ``PlateModel.fit_frame``): the texture, common to data and model, is signal;
 4. checks the mark's path clear of the ROI edges, its contrast ``g`` against recent frames
    (a covered mark loses contrast; a jump of it, something passing beside the mark, is refused:
    core.tracking.gains) and the fit's residual against the residuals while priming: a failed
@@ -512,25 +499,14 @@ class PlateMarkTracker:
                 return ('too dark', 0.0, math.nan)
         size = plate.size
         window, valid, j0 = grid_window(d, start, size, size // 2)
-        fit = plate.fit(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0,
-                        best=True)
         tolerance = REACQUIRE_MATCH if lost else cfg.match_tolerance + 0.5
-        if fit is None or fit[5] > tolerance * self._rms:
-            # A false minimum (short kernels' blur and curvature are hardly separable), or the
-            # steps ran out (a turning point): go on from there, restart from short kernels.
-            starts = [(start - j0 - plate.center, b, 0.0)
-                      for b in (RESTART_BLURS if restart else RESTART_BLURS[:1])]
-            for d0, b0, c0 in starts if fit is None else [fit[:3], *starts]:
-                other = plate.fit(window, valid, d0, b0, c0, reach + 8.0, best=True)
-                if other is not None and (fit is None or other[5] < fit[5]):
-                    fit = other
-        if fit is not None and fit[5] > tolerance * self._rms and self.texture < TEXTURE_SCORE:
-            # Something passing beside the mark: fitted without the columns it darkens. On a
-            # plain plate only (on a speckle a whole-frame smear's fit is often worse than that:
-            # speckle_full's stator went 0.099 -> 0.106 px RMS).
-            clear = plate.fit_clear(window, valid, fit, reach + 8.0, self._rms)
-            if clear is not None and clear[5] < fit[5]:
-                fit = clear
+        # Restarted from short kernels if poor; then, on a plain plate only, fitted without
+        # what passes beside the mark (a whole-frame smear on a speckle often fits that poorly:
+        # speckle_full's stator went 0.099 -> 0.106 px RMS).
+        fit = plate.fit_frame(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0,
+                              tolerance * self._rms,
+                              RESTART_BLURS if restart else RESTART_BLURS[:1],
+                              self._rms if self.texture < TEXTURE_SCORE else None)
         if fit is None:
             return ('no match', 0.0, math.nan)
         delta, blur, curve, gain, _, rms, sigma, sigma_gain = fit
@@ -557,15 +533,10 @@ class PlateMarkTracker:
         if reference is None:
             return ('mark area changed', 0.0, peak)
         # The gain's own noise widens the tolerance (a faint mark's gain is noisy).
-        tolerance = math.hypot(cfg.area_tolerance, 3.0 * sigma_gain / reference)
-        q_gain = math.exp(-0.5 * ((gain / reference - 1.0) / tolerance) ** 2)
-        excess = max(rms / self._rms - cfg.match_tolerance, 0.0)
-        q_match = math.exp(-0.5 * (excess / 0.5) ** 2)
         snr = peak * math.sqrt(cfg.smoothing_px) / max(rms, 1e-12)
-        q_snr = 1.0 - math.exp(-(snr / cfg.snr_scale) ** 2)
-        quality = q_snr * q_gain * q_match
+        quality, reason = cfg.quality(snr, gain / reference, math.hypot(
+            cfg.area_tolerance, 3.0 * sigma_gain / reference), rms / self._rms)
         if quality < cfg.min_quality or snr < cfg.min_snr:
-            reason = 'mark area changed' if min(q_gain, q_match) < q_snr else 'low contrast'
             return (reason, quality, peak)
         self._predictor.add(position)
         self._kernel = (blur, curve)

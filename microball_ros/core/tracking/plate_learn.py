@@ -1,10 +1,19 @@
 """Learning one plate from the priming frames (core.tracking.plate's step 1): ``learn_plate``.
 
 From the ROI images of the priming frames it learns the row weights (the mark's depth per row,
-in the rows it is deep in), the static field with each frame's light, and (``PlateSolver``)
-the plate's deficit ``D`` with each frame's position and motion kernel; ``D``'s origin is then
-moved to the mark's centre (``PlateModel.mark_center``). What it learned is a ``LearnedPlate``,
-which the tracker keeps or drops as a whole.
+in the rows it is deep in: ``deep_rows``) and, jointly (``PlateSolver``, alternating least
+squares), the whole plate's deficit ``D`` seen through the ROI, the static field (illumination
+and dust fixed in the image) with each frame's light (flicker and a drifting gradient: a
+quadratic over the ROI), and each frame's position and kernel: first positions from the dip's
+centroid (the parts of a mark, such as two bars, joined; a gain per frame divided out) and
+kernels from neighbouring frames, then rounds of ``D`` (preconditioned conjugate gradients),
+static field and lights (closed form), positions and kernels (fits), until the fits move the
+positions under ``SETTLED`` px RMS (at most ``ROUNDS``). ``D``'s origin is then moved to the
+mark's centre, the mid-point of its outer edges (half-depth crossings, or the centre of
+symmetry if they are pixels off it: ``PlateModel.mark_center``). What it learned is a
+``LearnedPlate``, which the tracker keeps or drops as a whole; it learns twice, the second time
+from the positions and kernels the first plate measures, on the ROI divided by a row flat field
+(priming.row_flat_field: a pattern fixed in the image that differs between rows).
 """
 
 from dataclasses import dataclass

@@ -329,6 +329,28 @@ class PlateModel:
         sigma_gain = math.sqrt(max(float(covariance[1, 1]) * variance, 0.0))
         return (delta, blur, curve, gain, offset, math.sqrt(variance), sigma, sigma_gain)
 
+    def fit_frame(self, window, valid, delta, blur, curve, reach, limit, blurs, noise=None):
+        """Return ``fit`` of a frame from (delta, blur, curve), with its fallbacks; None: none.
+
+        A fit whose residual is over ``limit`` (a false minimum: a short kernel's blur and
+        curvature are hardly separable; or steps run out at a turning point) goes on from where
+        it ended and starts again at rest from each blur of ``blurs``: the best is kept. With
+        ``noise`` (the residual per column), one still over ``limit`` is fitted again without
+        the columns something beside the mark darkens (``fit_clear``), kept if better.
+        """
+        fit = self.fit(window, valid, delta, blur, curve, reach, best=True)
+        if fit is None or fit[5] > limit:
+            starts = [(delta, b, 0.0) for b in blurs]
+            for d0, b0, c0 in starts if fit is None else [fit[:3], *starts]:
+                other = self.fit(window, valid, d0, b0, c0, reach, best=True)
+                if other is not None and (fit is None or other[5] < fit[5]):
+                    fit = other
+        if fit is not None and fit[5] > limit and noise is not None:
+            clear = self.fit_clear(window, valid, fit, reach, noise)
+            if clear is not None and clear[5] < fit[5]:
+                fit = clear
+        return fit
+
     def fit_clear(self, window, valid, fit, reach, noise):
         """Return ``fit`` again without the columns something beside the mark darkens.
 
