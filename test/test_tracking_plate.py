@@ -152,6 +152,18 @@ def test_plate_learning_runs_until_the_positions_settle():
     assert spread[4] > 1.2 * spread[40]
 
 
+def test_outlier_columns_are_runs_far_off_the_rest_widened():
+    from microball_ros.core.tracking.plate_solver import outlier_columns
+
+    rng = np.random.default_rng(3)
+    residual = 0.01 * rng.standard_normal((20, 150))
+    residual[4, 60:72] += 0.2  # a particle in frame 4
+    residual[9, 30:33] += 0.2  # three columns: not a run
+    out = outlier_columns(residual)
+    assert np.array_equal(np.flatnonzero(out[4]), np.arange(58, 74))
+    assert np.count_nonzero(out) == 16
+
+
 def test_motion_curvatures_are_the_quadratic_through_three_frames():
     positions = 3.0 + 2.0 * np.arange(8) + 0.75 * np.arange(8) ** 2
     positions[5] = np.nan

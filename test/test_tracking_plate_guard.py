@@ -115,18 +115,29 @@ def test_a_particle_passing_a_mark_on_a_plain_plate_leaves_its_clear_frames_meas
     assert np.sqrt(np.nanmean(error[clear] ** 2)) < 0.02
 
 
-def test_a_particle_passing_during_priming_does_not_spoil_what_is_learned():
-    # The particle above, over a cross, in frames 40-100: two thirds of the way into the
-    # priming frames. Its frames were lost by the centroid, so a long-smear plate was learned
-    # and refused every frame (127 of 134 clear frames lost, 3 px off), and the centroid's
-    # frames the particle pulled kept the plate from being judged better. Now the long-smear
-    # plate is kept only if it loses fewer frames, and the plate is judged on the frames where
-    # the two trackers agree.
-    error, gap = _particle_passing('cross', 40, 140)
-    covered, clear = gap < 5.0, gap >= 12.0 + 10.0 + 2.0
+@pytest.mark.parametrize('shape, extent, lost', [('cross', 10.0, 0.02), ('bar', 10.0, 0.02),
+                                                 ('pair', 13.0, 0.02), ('blob', 20.0, 0.12)])
+def test_a_particle_passing_during_priming_does_not_spoil_what_is_learned(shape, extent, lost):
+    # The particle above in frames 40-100: two thirds of the way into the priming frames.
+    # - cross: its frames were lost by the centroid, so a long-smear plate was learned and
+    #   refused every frame (127 of 134 clear frames lost, 3 px off); the long-smear plate is
+    #   now kept only if it loses fewer frames, the plate judged where the trackers agree.
+    # - bar, bar pair: the plate learned the particle (its first positions were the
+    #   particle's in the frames it was deeper than the mark, and the solver fitted it in the
+    #   others): 6 and 18 clear frames lost, the bar's plate not kept. Now frames whose dip is
+    #   not the centroid's mark are left out and the solver leaves out what it misses
+    #   grossly beside the mark.
+    # - blob: the centroid (its plate is not kept: as jittery as the centroid) took the
+    #   particle, deeper than the blob, for the mark: one frame 67 px off, 47 lost. Now a
+    #   dip beyond the mark's reach gives way to one within it; the particle at the ROI's
+    #   end is left out of the baseline. What is lost is the particle at the ROI's ends and
+    #   over the blob's wide tail.
+    error, gap = _particle_passing(shape, 40, 140)
+    covered, clear = gap < 0.5 * extent, gap >= 12.0 + extent + 2.0
+    assert np.count_nonzero(covered) >= 2 and np.count_nonzero(clear) >= 120
     assert not np.isfinite(error[covered]).any()
-    assert np.count_nonzero(~np.isfinite(error[clear])) <= 0.02 * np.count_nonzero(clear)
-    assert np.nanmax(np.abs(error)) < 0.1
+    assert np.count_nonzero(~np.isfinite(error[clear])) <= lost * np.count_nonzero(clear)
+    assert np.nanmax(np.abs(error)) < (0.1 if shape != 'blob' else 0.5)
 
 
 def test_the_light_beside_a_mark_is_not_tilted_by_a_particle_over_a_flank(monkeypatch):
@@ -164,6 +175,32 @@ def test_disturbed_finds_a_local_dip_beside_the_mark_but_not_a_smooth_trend():
     trend[:20] += 0.05 * ((20 - np.arange(20)) / 20.0) ** 2
     assert not disturbed(trend, keep).any()
     assert not disturbed(deficit, keep).any()
+    # Something entering the ROI has one side: the plate beyond it, there
+    entering = deficit.copy()
+    entering[:9] += 0.3
+    off = disturbed(entering, keep)
+    assert off[:9].all() and np.flatnonzero(off).max() <= 11
+
+
+def test_the_centroid_takes_the_dip_within_the_marks_reach_not_a_deeper_one_beyond():
+    # A bar (8 px, 40 % dark) moves 3 px a frame; from frame 20 a disc twice as deep sits
+    # 100 px ahead of it. The strongest dip of the ROI is the disc: taken for the mark, it was
+    # refused (its rows are not the mark's) and the mark lost in every frame it was there.
+    from microball_ros.core.tracking.centroid import CentroidMarkTracker
+
+    rng = np.random.default_rng(5)
+    columns, rows = np.meshgrid(np.arange(240.0), np.arange(40.0))
+    tracker = CentroidMarkTracker((0, 0, 240, 40))
+    for n in range(40):
+        truth = 40.0 + 3.0 * n
+        frame = np.full((40, 240), 160.0)
+        frame[5:35] *= 1.0 - 0.4 * np.clip(4.5 - np.abs(columns[5:35] - truth), 0.0, 1.0)
+        if n >= 20:
+            disc = np.hypot(columns - (truth + 100.0), rows - 20.0) <= 10.0
+            frame[disc] *= 0.2
+        found = tracker.measure(frame + rng.normal(0.0, 1.0, frame.shape))
+        assert found.valid, (n, found.reason)
+        assert abs(found.position_px - truth) < 0.1, n
 
 
 def test_after_a_loss_the_mark_is_among_the_best_matches_beside_a_stronger_particle():

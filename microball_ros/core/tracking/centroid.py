@@ -3,15 +3,17 @@
 Owns CentroidMarkTracker. Per frame it removes the static background learned on the priming
 frames (core.tracking.background, if any), builds the profile and baseline
 (core.tracking.profile; the plate's columns that something else darkens, such as a particle
-passing, left out of the baseline: ``disturbed``), locates the dip (core.tracking.search),
-checks it (signal-to-noise, the mark clear of the ROI edges, no saturation, row weights like
-the mark's own, an integrated deficit consistent with recent frames) and fits its position
-(core.tracking.subpixel). A failed check gives NaN and a quality below ``min_quality``:
-positions are never invented. Its state, all from earlier frames in order: the previous
-position (to tell a still mark from a moving one), the recent integrated deficits (to recognise
-a partly hidden mark) and, after the first ``ROW_FRAMES`` frames the mark was found in, its
-rows and row weights (the plates move along x only, so they do not change; a frame whose rows
-depart from them shows a mark partly hidden or something dark beside it).
+passing, left out of the baseline: ``disturbed``), locates the dip (core.tracking.search: the
+strongest one within the mark's reach, ``Reach``, and when it fails a check the next one
+there), checks it (signal-to-noise, the mark clear of the ROI edges, no saturation, row
+weights like the mark's own, an integrated deficit consistent with recent frames) and fits its
+position (core.tracking.subpixel). A failed check gives NaN and a quality below
+``min_quality``: positions are never invented. Its state, all from earlier frames in order:
+the previous position (to tell a still mark from a moving one), where it was last found and
+how far it moved per frame (its reach), the recent integrated deficits (to recognise a partly
+hidden mark) and, after the first ``ROW_FRAMES`` frames the mark was found in, its rows and
+row weights (the plates move along x only, so they do not change; a frame whose rows depart
+from them shows a mark partly hidden or something dark beside it).
 
 A smear longer than ``LONG_SMEAR`` of the ROI (15 fps at a whole-frame exposure) leaves too
 little plate in its own frame for a baseline: it is measured against the plain plate learned
@@ -43,7 +45,7 @@ from microball_ros.core.tracking.profile import (
     smooth,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
-from microball_ros.core.tracking.search import locate
+from microball_ros.core.tracking.search import Dip, locate, locate_within
 from microball_ros.core.tracking.subpixel import deficit_centroid, refine_position
 
 ROW_FRAMES = 20
@@ -61,6 +63,11 @@ SHORT_FIRST = 0.6
 CUT_FRACTION = 0.05
 LOST_FRACTION = 0.2  # priming frames lost with their own baseline: smears may be long
 SMEAR_GROWTH = 2.0  # a long smear's extent (90th percentile) over its shortest (10th)
+# Reach: after MIN_STEPS steps between consecutive frames the mark was found in, it is at most
+# REACH_MARGIN times the largest of the last STEP_HISTORY steps (plus 1 px) per frame from
+# where it was last found; a dip there NEAR_PEAK as deep as the mark wins over a deeper one
+# outside.
+MIN_STEPS, STEP_HISTORY, REACH_MARGIN, NEAR_PEAK = 5, 60, 1.5, 0.5
 
 
 def mark_rows(weights: list[np.ndarray],
@@ -107,6 +114,57 @@ def cut_smear(deficit: np.ndarray, lo: int, hi: int, pad: int, noise: float) -> 
         deficit.size)
 
 
+class Reach:
+    """Where the mark can be in this frame: how far it moved per frame, from where it was found.
+
+    A particle passing over the plate, deeper than the mark, is the strongest dip of the ROI:
+    taken for the mark, it is tens of pixels off. The mark moves a bounded step per frame, so
+    a dip beyond what it can have moved since it was last found is something else when
+    another, nearly as deep as the mark (``NEAR_PEAK``), lies within reach. Without that,
+    the strongest dip stands (a mark that jumped is found again).
+    """
+
+    def __init__(self):
+        self.last: float | None = None
+        self.since = 0
+        self.steps: deque[float] = deque(maxlen=STEP_HISTORY)
+        self.peaks: deque[float] = deque(maxlen=STEP_HISTORY)
+        self.extents: deque[float] = deque(maxlen=STEP_HISTORY)
+
+    def copy(self) -> 'Reach':
+        """Return an independent copy (a trial measurement must not change this one)."""
+        other = Reach()
+        other.last, other.since = self.last, self.since
+        other.steps.extend(self.steps)
+        other.peaks.extend(self.peaks)
+        other.extents.extend(self.extents)
+        return other
+
+    def found(self, position: float, peak: float, extent: float) -> None:
+        """Record the mark found at ``position`` (px) with this ``peak`` and ``extent``."""
+        if self.last is not None and self.since == 1:
+            self.steps.append(abs(position - self.last))
+        self.last, self.since = position, 0
+        self.peaks.append(peak)
+        self.extents.append(extent)
+
+    def window(self, x: int) -> tuple[float, float] | None:
+        """Return the ROI columns the mark's dip can peak in; None: any.
+
+        ``x``: the ROI's first image column. Within the largest recent extent's half (the
+        dip's peak is within it of the mark's centre) of the reach.
+        """
+        if self.last is None or len(self.steps) < MIN_STEPS:
+            return None
+        reach = self.since * (REACH_MARGIN * max(self.steps) + 1.0) + 0.5 * max(self.extents)
+        center = self.last - x
+        return center - reach, center + reach
+
+    def least(self) -> float:
+        """Return the least peak of a dip taken for the mark in place of a deeper one (inf)."""
+        return NEAR_PEAK * float(np.median(self.peaks)) if self.peaks else math.inf
+
+
 class CentroidMarkTracker:
     """Track one mark inside one ROI, frame by frame.
 
@@ -136,6 +194,10 @@ class CentroidMarkTracker:
         self._row_tolerance = math.inf
         self._weights: np.ndarray | None = None
         self._row_samples: list[np.ndarray] = []
+        self._reach = Reach()
+        self._gate: tuple[float, float] | None = None
+        self._taken: tuple[int, int] | None = None  # the dip measured (columns)
+        self._exclude: tuple[int, int] | None = None  # a dip found not to be the mark
         self.polarity: str | None = None if self.config.polarity == 'auto' else (
             self.config.polarity)
 
@@ -143,6 +205,7 @@ class CentroidMarkTracker:
         """Forget the history (for a new, unrelated sequence)."""
         self._areas.clear()
         self._previous = None
+        self._reach = Reach()
         self._rows = self._row_weights = None
         self._row_tolerance = math.inf
         self._row_samples.clear()
@@ -314,6 +377,8 @@ class CentroidMarkTracker:
         Before the polarity is known ('auto') it is guessed from the column profile, else
         from the ROI's pixels; when neither is clear, both are tried and the better is kept.
         """
+        self._reach.since += 1
+        self._gate = self._reach.window(self.roi[0])
         if self.polarity is not None:
             return self._measure(frame, self.polarity)
         x, y, w, h = self.roi
@@ -325,20 +390,45 @@ class CentroidMarkTracker:
                 if measurement.valid:
                     self.polarity = guess
                 return measurement
-        state = (deque(self._areas, maxlen=self._areas.maxlen), self._previous)
+        state = (deque(self._areas, maxlen=self._areas.maxlen), self._previous, self._reach)
         results = {}
         for polarity in ('dark', 'bright'):
             self._areas, self._previous = deque(state[0], maxlen=state[0].maxlen), state[1]
-            results[polarity] = (self._measure(frame, polarity), self._areas, self._previous)
+            self._reach = state[2].copy()
+            results[polarity] = (self._measure(frame, polarity), self._areas, self._previous,
+                                 self._reach)
         polarity = max(results, key=lambda p: (results[p][0].valid, results[p][0].quality,
                                                results[p][0].contrast
                                                if math.isfinite(results[p][0].contrast) else 0))
-        measurement, self._areas, self._previous = results[polarity]
+        measurement, self._areas, self._previous, self._reach = results[polarity]
         if measurement.valid:
             self.polarity = polarity
         return measurement
 
     def _measure(self, frame: np.ndarray, polarity: str) -> MarkMeasurement:
+        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
+
+        When the dip taken fails a check (something else dark, deeper than the mark: its rows
+        or its area are not the mark's), the strongest other dip within reach at least
+        ``Reach.least`` deep is measured instead, if there is one.
+        """
+        self._exclude = self._taken = None
+        areas = deque(self._areas, maxlen=self._areas.maxlen)
+        found = self._measure_dip(frame, polarity)
+        if found.valid or self._taken is None or not self._reach.peaks:
+            return found
+        first = self._areas
+        guard = int(self.config.pad_px) + int(self.config.smoothing_px)
+        self._exclude = (self._taken[0] - guard, self._taken[1] + guard)
+        self._areas = areas
+        other = self._measure_dip(frame, polarity)
+        self._exclude = None
+        if other.valid:
+            return other
+        self._areas = first  # as if only the first dip had been measured
+        return found
+
+    def _measure_dip(self, frame: np.ndarray, polarity: str) -> MarkMeasurement:
         """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
 
         Quality = (1 - exp(-(snr / snr_scale)^2)) * exp(-(area ratio - 1)^2 / (2 tol^2)) (tol:
@@ -377,7 +467,10 @@ class CentroidMarkTracker:
         if baseline.min() < cfg.min_baseline:
             return self._invalid('too dark')
         deficit = relative_deficit(profile, baseline, polarity)
-        _, _, lo, hi = locate(deficit, 0.0, 0.25, cfg.smoothing_px)
+        dip = self._locate(deficit, 0.0, 0.25, 0)
+        if dip is None:
+            return self._invalid('no other dip')
+        _, _, lo, hi = dip
         margin = guard + (hi - lo) // 4
         # Columns something else darkens (``disturbed``: a dip beside the mark) stay out
         off = np.ones(w, dtype=bool)
@@ -395,10 +488,37 @@ class CentroidMarkTracker:
             deficit = self._deficit(profile, keep, polarity)
             if deficit is None:
                 return self._invalid('too dark')
-            _, _, lo, hi = locate(deficit, 0.0, cfg.threshold, cfg.smoothing_px,
-                                  cfg.merge_gap_px)
+            if attempt == 0:  # against the fitted baseline, what the envelope hid
+                off |= disturbed(deficit, keep)
+            dip = self._locate(deficit, 0.0, cfg.threshold, cfg.merge_gap_px)
+            if dip is None:
+                return self._invalid('no other dip')
+            _, _, lo, hi = dip
             margin = guard
         return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation, None)
+
+    def _locate(self, deficit, noise, fraction, gap) -> Dip | None:
+        """Return the mark's dip: the strongest one, within reach and not excluded (``Reach``).
+
+        A deeper dip out of reach gives way to one within it at least ``Reach.least`` deep; an
+        excluded dip (``_exclude``) to any such other one, else None.
+        """
+        smoothing = int(self.config.smoothing_px)
+        dip = locate(deficit, noise, fraction, smoothing, gap)
+        gate, exclude = self._gate, self._exclude
+        if (gate is None or gate[0] <= dip.column <= gate[1]) and (
+                exclude is None or not exclude[0] <= dip.column <= exclude[1]):
+            return dip
+        columns = np.arange(deficit.size)
+        allowed = np.ones(deficit.size, dtype=bool)
+        if exclude is not None:
+            allowed &= (columns < exclude[0]) | (columns > exclude[1])
+        if gate is not None:
+            allowed &= (columns >= gate[0]) & (columns <= gate[1])
+        near = locate_within(deficit, noise, fraction, smoothing, gap, allowed)
+        if near is not None and near.peak >= self._reach.least():
+            return near
+        return None if self._exclude is not None else dip
 
     def _against_plate(self, profile, weights, polarity, keep=None, shortest=0.0):
         """Return (deficit, keep, lo, hi, gain, cut) against the learned plate times a gain.
@@ -462,6 +582,8 @@ class CentroidMarkTracker:
         ROI shows.
         """
         smear = gain is not None
+        if not smear:
+            self._taken = (lo, hi)
         cfg = self.config
         x, _, w, _ = self.roi
         pad = int(cfg.pad_px)
@@ -494,8 +616,11 @@ class CentroidMarkTracker:
                 if deficit is None:
                     return self._invalid('too dark')
         noise = deficit_noise(deficit, keep)
-        _, peak, lo, hi = locate(deficit, noise, SMEAR_THRESHOLD if smear else cfg.threshold,
-                                 cfg.smoothing_px, cfg.merge_gap_px)
+        dip = self._locate(deficit, noise, SMEAR_THRESHOLD if smear else cfg.threshold,
+                           cfg.merge_gap_px)
+        if dip is None:
+            return self._invalid('no other dip')
+        _, peak, lo, hi = dip
         snr = peak * math.sqrt(cfg.smoothing_px) / noise
         if snr < cfg.min_snr or peak < cfg.min_depth:
             return self._invalid('low contrast', contrast=peak)
@@ -528,6 +653,7 @@ class CentroidMarkTracker:
             return MarkMeasurement(float('nan'), quality, contrast=peak, extent_px=extent,
                                    reason=reason)
         self._previous = position
+        self._reach.found(position, peak, extent)
         self._learn_rows()
         return MarkMeasurement(position, quality, sigma_px=sigma, contrast=peak,
                                extent_px=extent)

@@ -308,7 +308,7 @@ class PlateMarkTracker:
         track (``mark_rows``).
         """
         centroid, reference, _ = tracked
-        self._learn(regions)
+        self._learn(regions, found=centroid)
         if self.plate is not None:
             self._relearn(regions, frames)
         if self.plate is None:
@@ -364,16 +364,17 @@ class PlateMarkTracker:
             learned.flat = flat
             self._use(learned)
 
-    def _learn(self, regions, start=None) -> None:
+    def _learn(self, regions, start=None, found=None) -> None:
         """Learn the plate (core.tracking.plate_learn); leave ``plate`` None on failure.
 
         ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
-        instead of the dip centroids and kernels from neighbouring frames.
+        instead of the dip centroids and kernels from neighbouring frames; ``found``: the
+        centroid's positions, frames whose dip centroid is far off them left out.
         """
         if self.polarity is None:
             return
         learned = learn_plate(regions, self.polarity, self.config, self.exposure_fraction,
-                              self._motion is not None, start)
+                              self._motion is not None, start, found)
         if learned is None:
             self.plate = None
         else:

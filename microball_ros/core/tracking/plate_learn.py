@@ -30,6 +30,7 @@ from microball_ros.core.tracking.search import dip_extent
 
 ROUNDS, SETTLED = 16, 0.01  # the joint learning: at most 16 rounds, stopped when settled
 SMEAR_ROUNDS = 8  # a long smear's plate: positions start pixels off (core.tracking.smear)
+AGREE_PX, AGREE_EXTENT = 2.0, 0.25  # learn_plate's ``found``: a dip centroid that far off
 WHOLE_LEVEL = 0.05  # of D's peak: the whole mark, for the rows' guard of a plain plate
 
 
@@ -57,16 +58,39 @@ class LearnedPlate:
     flat: np.ndarray | None = None
 
 
+def agree(positions: np.ndarray, extents: np.ndarray, found: np.ndarray) -> np.ndarray:
+    """Return the frames whose ``positions`` agree with the mark ``found`` (NaN: lost).
+
+    Within ``AGREE_PX`` px or ``AGREE_EXTENT`` of the median extent of it; where it was lost,
+    within the median extent of its track interpolated across the loss (a mark at the ROI's
+    edge the other tracker refuses is still near there; a particle is not).
+    """
+    known = np.isfinite(found)
+    if not np.any(known) or not np.any(np.isfinite(extents)):
+        return np.zeros(positions.size, dtype=bool)
+    extent = float(np.nanmedian(extents))
+    frames = np.arange(positions.size)
+    track = np.where(known, found, np.interp(frames, frames[known], found[known]))
+    tolerance = np.where(known, max(AGREE_PX, AGREE_EXTENT * extent), max(AGREE_PX, extent))
+    return np.abs(positions - track) <= tolerance
+
+
 def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction: float,
-                long_smear: bool = False, start=None) -> LearnedPlate | None:
+                long_smear: bool = False, start=None, found=None) -> LearnedPlate | None:
     """Learn row weights, static field and plate from the ROI images ``regions``; None: failed.
 
     ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
     instead of the dip centroids and kernels from neighbouring frames; a long smear's
     (core.tracking.smear.smear_start, ``long_smear``) brings the extents and half-width too.
+    ``found``: the mark's positions per frame from another tracker (ROI columns, NaN: lost);
+    a frame whose dip centroid does not ``agree`` with it is left out (its strongest dip is
+    something else: a particle), and the solver is robust (``PlateSolver``: a frame's columns
+    it misses grossly left out).
     """
     cfg = config
     positions, extents = first_positions(regions, polarity, cfg)
+    if found is not None:
+        positions[~agree(positions, extents, np.asarray(found, dtype=float))] = np.nan
     if start is not None and len(start) > 2:  # a long smear: the extents come with it
         positions, extents = (np.array(v, dtype=float) for v in (start[0], start[2]))
     elif start is not None:
@@ -92,7 +116,8 @@ def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction
                        or len(start) < 4 else start[3])
     kernels = (motion_kernels(positions, exposure_fraction) if start is None
                else np.array(start[1], dtype=float))
-    solver = PlateSolver(profiles, static, 1.0 if polarity == 'dark' else -1.0)
+    solver = PlateSolver(profiles, static, 1.0 if polarity == 'dark' else -1.0,
+                         robust=found is not None)
     reach = half + cfg.pad_px
     rounds = SMEAR_ROUNDS if long_smear else ROUNDS
     rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED, exposure_fraction)

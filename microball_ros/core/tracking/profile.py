@@ -222,8 +222,9 @@ def disturbed(deficit: np.ndarray, keep: np.ndarray) -> np.ndarray:
     ``DISTURBED_RUN`` columns of ``keep`` off the deficit's median there by more than
     ``DISTURBED_SPREADS`` times the noise (``deficit_noise``) and than half the largest such
     departure, that are local: ``CLOSE`` px beyond either end the plate (kept columns) departs
-    under ``LOCAL`` as much. A baseline that cannot follow the plate near the ROI's ends
-    departs smoothly, or at an end: it is left as it is. Widened by 2 columns.
+    under ``LOCAL`` as much (beyond the end away from the ROI's end only, for a run that
+    reaches it: something entering the ROI). A baseline that cannot follow the plate near the
+    ROI's ends departs smoothly: it is left as it is. Widened by 2 columns.
     """
     off = np.zeros(deficit.size, dtype=bool)
     if np.count_nonzero(keep) < 12:
@@ -240,11 +241,12 @@ def disturbed(deficit: np.ndarray, keep: np.ndarray) -> np.ndarray:
         if columns.size < DISTURBED_RUN:
             continue
         sides = [np.arange(first - far, first - near + 1), np.arange(last + near, last + far + 1)]
+        # A run at the ROI's end (something entering it) has one side
         sides = [side[(side >= 0) & (side < keep.size)] for side in sides]
-        sides = [side[keep[side]] for side in sides]
+        sides = [side[keep[side]] for side in sides if side.size >= 3]
         peak = float(departure[first:last + 1].max())
-        if all(side.size >= 3 and float(departure[side].max()) < LOCAL * peak
-               for side in sides):
+        if sides and all(side.size >= 3 and float(departure[side].max()) < LOCAL * peak
+                         for side in sides):
             off[max(first - 2, 0):last + 3] = True
     return off & keep
 

@@ -3,8 +3,8 @@
 Owns detection in the 1-D deficit of core.tracking.profile: the strongest dip of the smoothed
 deficit and its extent, the columns around it where the deficit exceeds a fraction of its peak
 (or three noise sigmas, whichever is higher). The whole ROI is searched in every frame, so a
-lost mark is re-acquired as soon as it returns; a search gated around the previous position
-belongs here.
+lost mark is re-acquired as soon as it returns; ``locate_within`` is the strongest dip among
+some columns (where the mark can be, or away from a dip found not to be the mark).
 """
 
 import math
@@ -79,7 +79,30 @@ def locate(deficit: np.ndarray, noise: float, fraction: float, smoothing_px: int
     separated by at most ``gap`` columns joined.
     """
     smoothed = smooth(deficit, int(smoothing_px))
-    k = int(np.argmax(smoothed))
+    return _dip(smoothed, int(np.argmax(smoothed)), noise, fraction, smoothing_px, gap)
+
+
+def locate_within(deficit: np.ndarray, noise: float, fraction: float, smoothing_px: int,
+                  gap: int, allowed: np.ndarray) -> Dip | None:
+    """Return the strongest dip whose peak lies in the ``allowed`` columns, as ``locate``.
+
+    None if the largest smoothed deficit there is not a local maximum (the flank of a dip
+    elsewhere) or is not above zero.
+    """
+    smoothed = smooth(deficit, int(smoothing_px))
+    if not np.any(allowed):
+        return None
+    k = int(np.argmax(np.where(allowed, smoothed, -np.inf)))
+    peak = float(smoothed[k])
+    if not peak > 0 or (k > 0 and smoothed[k - 1] > peak) or (
+            k < smoothed.size - 1 and smoothed[k + 1] > peak):
+        return None
+    return _dip(smoothed, k, noise, fraction, smoothing_px, gap)
+
+
+def _dip(smoothed: np.ndarray, k: int, noise: float, fraction: float, smoothing_px: int,
+         gap: int) -> Dip:
+    """Return the dip of the smoothed deficit whose peak is column ``k`` (see ``locate``)."""
     peak = float(smoothed[k])
     threshold = max(fraction * peak, 3.0 * noise / math.sqrt(smoothing_px))
     lo, hi = dip_extent(smoothed, k, threshold, int(gap))
