@@ -8,9 +8,10 @@ quadratic over the ROI), and each frame's position and kernel: first positions f
 centroid (the parts of a mark, such as two bars, joined; a gain per frame divided out) and
 kernels from neighbouring frames, then rounds of ``D`` (preconditioned conjugate gradients),
 static field and lights (closed form), positions and kernels (fits), until the fits move the
-positions under ``SETTLED`` px RMS (at most ``ROUNDS``). ``D``'s origin is then moved to the
-mark's centre, the mid-point of its outer edges (half-depth crossings, or the centre of
-symmetry if they are pixels off it: ``PlateModel.mark_center``). What it learned is a
+positions under ``SETTLED`` px RMS (at most ``ROUNDS``); from the second round, what the model
+misses grossly in a frame away from the mark (a particle passing) is left out of it. ``D``'s
+origin is then moved to the mark's centre, the mid-point of its outer edges (half-depth
+crossings, or the centre of symmetry if they are pixels off it: ``PlateModel.mark_center``). What it learned is a
 ``LearnedPlate``, which the tracker keeps or drops as a whole; it learns twice, the second time
 from the positions and kernels the first plate measures, on the ROI divided by a row flat field
 (priming.row_flat_field: a pattern fixed in the image that differs between rows).
@@ -84,8 +85,7 @@ def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction
     (core.tracking.smear.smear_start, ``long_smear``) brings the extents and half-width too.
     ``found``: the mark's positions per frame from another tracker (ROI columns, NaN: lost);
     a frame whose dip centroid does not ``agree`` with it is left out (its strongest dip is
-    something else: a particle), and the solver is robust (``PlateSolver``: a frame's columns
-    it misses grossly left out).
+    something else: a particle).
     """
     cfg = config
     positions, extents = first_positions(regions, polarity, cfg)
@@ -97,10 +97,9 @@ def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction
         positions = np.array(start[0], dtype=float)
         typical = float(np.nanmedian(extents)) if np.any(np.isfinite(extents)) else 0.0
         extents = np.where(np.isfinite(extents), extents, typical)
-    found = [row_weights(r, int(p - e / 2), int(p + e / 2), cfg.pad_px, polarity)
-             for r, p, e in zip(regions, positions, extents, strict=True)
-             if math.isfinite(p)]
-    each = [v for v in found if v is not None]
+    each = [v for v in (row_weights(r, int(p - e / 2), int(p + e / 2), cfg.pad_px, polarity)
+                        for r, p, e in zip(regions, positions, extents, strict=True)
+                        if math.isfinite(p)) if v is not None]
     if not each:
         return None
     deep = deep_rows(regions, positions, extents, polarity, exposure_fraction,
@@ -116,8 +115,7 @@ def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction
                        or len(start) < 4 else start[3])
     kernels = (motion_kernels(positions, exposure_fraction) if start is None
                else np.array(start[1], dtype=float))
-    solver = PlateSolver(profiles, static, 1.0 if polarity == 'dark' else -1.0,
-                         robust=found is not None)
+    solver = PlateSolver(profiles, static, 1.0 if polarity == 'dark' else -1.0)
     reach = half + cfg.pad_px
     rounds = SMEAR_ROUNDS if long_smear else ROUNDS
     rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED, exposure_fraction)

@@ -84,7 +84,7 @@ class PlateSolver:
 
     def __init__(self, profiles: np.ndarray, static: np.ndarray, sign: float,
                  regularisation: float = 0.05, iterations: int = 60, light_order: int = 2,
-                 robust: bool = False):
+                 robust: bool = True):
         """Keep the frames' profiles (frames x columns) and a first static field.
 
         Each frame's light is a polynomial of degree ``light_order`` over the columns (a gain,
