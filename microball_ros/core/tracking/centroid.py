@@ -67,7 +67,7 @@ SMEAR_GROWTH = 2.0  # a long smear's extent (90th percentile) over its shortest 
 # REACH_MARGIN times the largest of the last STEP_HISTORY steps (plus 1 px) per frame from
 # where it was last found; a dip there NEAR_PEAK as deep as the mark wins over a deeper one
 # outside.
-MIN_STEPS, STEP_HISTORY, REACH_MARGIN, NEAR_PEAK = 5, 60, 1.5, 0.5
+MIN_STEPS, STEP_HISTORY, REACH_MARGIN, NEAR_PEAK = 5, 300, 1.5, 0.5
 
 
 def mark_rows(weights: list[np.ndarray],
