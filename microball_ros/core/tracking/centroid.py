@@ -518,7 +518,7 @@ class CentroidMarkTracker:
         near = locate_within(deficit, noise, fraction, smoothing, gap, allowed)
         if near is not None and near.peak >= self._reach.least():
             return near
-        return None if self._exclude is not None else dip
+        return None if exclude is not None else dip
 
     def _against_plate(self, profile, weights, polarity, keep=None, shortest=0.0):
         """Return (deficit, keep, lo, hi, gain, cut) against the learned plate times a gain.

@@ -11,10 +11,11 @@ static field and lights (closed form), positions and kernels (fits), until the f
 positions under ``SETTLED`` px RMS (at most ``ROUNDS``); from the second round, what the model
 misses grossly in a frame away from the mark (a particle passing) is left out of it. ``D``'s
 origin is then moved to the mark's centre, the mid-point of its outer edges (half-depth
-crossings, or the centre of symmetry if they are pixels off it: ``PlateModel.mark_center``). What it learned is a
-``LearnedPlate``, which the tracker keeps or drops as a whole; it learns twice, the second time
-from the positions and kernels the first plate measures, on the ROI divided by a row flat field
-(priming.row_flat_field: a pattern fixed in the image that differs between rows).
+crossings, or the centre of symmetry if they are pixels off it: ``PlateModel.mark_center``).
+What it learned is a ``LearnedPlate``, which the tracker keeps or drops as a whole; it learns
+twice, the second time from the positions and kernels the first plate measures, on the ROI
+divided by a row flat field (priming.row_flat_field: a pattern fixed in the image that differs
+between rows).
 """
 
 from dataclasses import dataclass

@@ -77,22 +77,20 @@ class PlateSolver:
     the exposure's motion kernel. Rounds of: ``D`` given the rest (preconditioned conjugate
     gradients on the normal equations, circular convolutions by FFT, batched over frames);
     ``static`` and the frames' light (a low-order polynomial each) given ``D`` (closed form);
-    each frame's position and kernel given both (``PlateModel.fit``). ``robust``: from the
-    second round, a frame's columns the model misses grossly (``outlier_columns``) are left
-    out of ``D``, the static field and its light (those within its reach of the mark stay).
+    each frame's position and kernel given both (``PlateModel.fit``). From the second round, a
+    frame's columns the model misses grossly (``outlier_columns``) are left out of ``D``, the
+    static field and its light (those within its reach of the mark stay).
     """
 
     def __init__(self, profiles: np.ndarray, static: np.ndarray, sign: float,
-                 regularisation: float = 0.05, iterations: int = 60, light_order: int = 2,
-                 robust: bool = True):
+                 regularisation: float = 0.05, iterations: int = 60, light_order: int = 2):
         """Keep the frames' profiles (frames x columns) and a first static field.
 
         Each frame's light is a polynomial of degree ``light_order`` over the columns (a gain,
         flicker, and a gradient of the light that changes), times the static field.
         """
         self.profiles = profiles
-        self.robust = bool(robust)
-        self.keep = np.ones(profiles.shape)  # 0: a column left out of a frame (robust)
+        self.keep = np.ones(profiles.shape)  # 0: a column left out of a frame (an outlier)
         self.static = static.copy()
         self.sign = float(sign)
         self.basis = np.vander(np.linspace(-1.0, 1.0, profiles.shape[1]), int(light_order) + 1)
@@ -140,34 +138,30 @@ class PlateSolver:
             spectra = kernel_spectra(plate.k, kernels[use, 0], kernels[use, 1], delta)
             rows = np.arange(use.size)[:, None]
             cols = np.arange(w)[None, :] - j0[:, None]
-            keep = self.keep[use] if self.robust else None
+            keep = self.keep[use]
             mask = np.zeros((use.size, size))
-            mask[rows, cols] = 1.0 if keep is None else keep
+            mask[rows, cols] = keep
             data = np.zeros((use.size, size))
             ratio = self.profiles[use] / (self.light[use] * self.static[None, :])
-            data[rows, cols] = self.sign * (1.0 - ratio) * (1.0 if keep is None else keep)
+            data[rows, cols] = self.sign * (1.0 - ratio) * keep
             values = self._solve(values, spectra, mask, data, w / size)
             plate.values = values
             plate.spectrum = np.fft.rfft(values)
             model = 1.0 - self.sign * np.fft.irfft(plate.spectrum * spectra, size,
                                                    axis=1)[rows, cols]
             measured, light = self.profiles[use], self.light[use]
+            kept = np.where(keep.sum(axis=0) > 0, keep, 1.0)  # a column no frame keeps: all
             for _ in range(2):
-                if keep is None:
-                    static = ((light * measured * model).sum(axis=0)
-                              / (light ** 2 * model ** 2).sum(axis=0))
-                else:  # a column no frame keeps: its static field from all of them
-                    kept = np.where(keep.sum(axis=0) > 0, keep, 1.0)
-                    static = ((kept * light * measured * model).sum(axis=0)
-                              / (kept * light ** 2 * model ** 2).sum(axis=0))
+                static = ((kept * light * measured * model).sum(axis=0)
+                          / (kept * light ** 2 * model ** 2).sum(axis=0))
                 light = self._light(measured, static * model, keep)
                 scale = light.mean(axis=0)  # a light common to all frames is static
                 light, static = light / scale, static * scale
             self.static, self.light[use] = static, light
-            if self.robust:  # not at the mark: there the positions' fits answer for a misfit
-                near = np.abs(np.arange(w)[None, :] - positions[use, None]) <= (
-                    reach + 8.0 + np.abs(kernels[use, :1]) + np.abs(kernels[use, 1:]))
-                self.keep[use] = ~(outlier_columns(measured / (light * static) - model) & ~near)
+            # Not at the mark: there the positions' fits answer for a misfit
+            near = np.abs(np.arange(w)[None, :] - positions[use, None]) <= (
+                reach + 8.0 + np.abs(kernels[use, :1]) + np.abs(kernels[use, 1:]))
+            self.keep[use] = ~(outlier_columns(measured / (light * static) - model) & ~near)
             if round_ == rounds - 1 or moved_rms < settled:
                 break
             rms = []
@@ -202,15 +196,11 @@ class PlateSolver:
     def _light(self, measured, expected, keep):
         """Return each frame's light: the polynomial times ``expected`` nearest ``measured``.
 
-        Least squares over the columns ``keep`` (frames x columns, 0 or 1; None: all) holds.
+        Least squares over the columns ``keep`` (frames x columns, 0 or 1) holds.
         """
         design = expected[:, :, None] * self.basis[None, :, :]
-        if keep is None:
-            normal = np.einsum('nwi,nwj->nij', design, design)
-            right = np.einsum('nwi,nw->ni', design, measured)
-        else:
-            normal = np.einsum('nwi,nwj,nw->nij', design, design, keep)
-            right = np.einsum('nwi,nw->ni', design, measured * keep)
+        normal = np.einsum('nwi,nwj,nw->nij', design, design, keep)
+        right = np.einsum('nwi,nw->ni', design, measured * keep)
         coefficients = np.linalg.solve(normal, right[:, :, None])[:, :, 0]
         return coefficients @ self.basis.T
 
