@@ -216,12 +216,14 @@ class PlateMarkTracker:
         # A still mark (a stuck slider) learns no plate: the centroid's, or core.tracking.still's
         centroid = self._track_priming(frames, self._fallback.measure)
         still = is_still(centroid[1], x)
-        raw = [roi_region(frame, self.roi, self.name) for frame in frames]
-        self._still = StillMark.learn(raw, self.polarity, int(self.config.pad_px), still)
+        # Without the pattern fixed in the image (a dot of dust deeper than the mark in their
+        # mean was taken for a still mark); a mark still over the priming frames is in that
+        # pattern, which the centroid then does not keep
+        self._still = StillMark.learn(regions, self.polarity, int(self.config.pad_px), still)
         # A mark moving less than its width is in the median the plate's learning starts from
         small = self._still is None and not still and moves_little(centroid[1], x)
         if small:
-            self._still = SmallMotion.learn(raw, self.polarity, int(self.config.pad_px))
+            self._still = SmallMotion.learn(regions, self.polarity, int(self.config.pad_px))
         self._still_at = float(np.nanmedian(centroid[0])) if (
             still and self._still is None) else None
         if self._still is None and not still and not small:
@@ -418,7 +420,7 @@ class PlateMarkTracker:
             return self._invalid('long smear on a textured plate not learned')
         plate = self.plate
         if self._still is not None and not self._moved:
-            found = self._still.measure(roi_region(frame, self.roi, self.name),
+            found = self._still.measure(self._region(frame),
                                         self.roi[0])
             if found.reason != 'moved':
                 return found
