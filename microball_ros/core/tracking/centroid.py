@@ -68,6 +68,7 @@ SMEAR_GROWTH = 2.0  # a long smear's extent (90th percentile) over its shortest 
 # where it was last found; a dip there NEAR_PEAK as deep as the mark wins over a deeper one
 # outside.
 MIN_STEPS, STEP_HISTORY, REACH_MARGIN, NEAR_PEAK = 5, 300, 1.5, 0.5
+MIN_UNCLIPPED = 10  # a bright mark found this often, never saturated: saturation is a glint
 
 
 def mark_rows(weights: list[np.ndarray],
@@ -130,6 +131,8 @@ class Reach:
         self.steps: deque[float] = deque(maxlen=STEP_HISTORY)
         self.peaks: deque[float] = deque(maxlen=STEP_HISTORY)
         self.extents: deque[float] = deque(maxlen=STEP_HISTORY)
+        self.areas: deque[float] = deque(maxlen=STEP_HISTORY)
+        self.clipped: deque[bool] = deque(maxlen=STEP_HISTORY)  # saturated pixels in the window
 
     def copy(self) -> 'Reach':
         """Return an independent copy (a trial measurement must not change this one)."""
@@ -138,15 +141,27 @@ class Reach:
         other.steps.extend(self.steps)
         other.peaks.extend(self.peaks)
         other.extents.extend(self.extents)
+        other.areas.extend(self.areas)
+        other.clipped.extend(self.clipped)
         return other
 
-    def found(self, position: float, peak: float, extent: float) -> None:
-        """Record the mark found at ``position`` (px) with this ``peak`` and ``extent``."""
+    def found(self, position: float, peak: float, extent: float, area: float,
+              clipped: bool = False) -> None:
+        """Record the mark found at ``position`` (px) with this ``peak``, extent and area.
+
+        ``clipped``: saturated pixels in its window.
+        """
         if self.last is not None and self.since == 1:
             self.steps.append(abs(position - self.last))
         self.last, self.since = position, 0
         self.peaks.append(peak)
         self.extents.append(extent)
+        self.areas.append(area)
+        self.clipped.append(clipped)
+
+    def never_clipped(self) -> bool:
+        """Return True if the mark was found ``MIN_UNCLIPPED`` times and never saturated."""
+        return len(self.clipped) >= MIN_UNCLIPPED and not any(self.clipped)
 
     def window(self, x: int) -> tuple[float, float] | None:
         """Return the ROI columns the mark's dip can peak in; None: any.
@@ -627,9 +642,13 @@ class CentroidMarkTracker:
         first, last = lo - pad, hi + pad
         if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
-        if saturation is not None and polarity == 'dark':
+        clipped = False
+        if saturation is not None:
             window = raw[:, max(first - guard, 0):last + guard + 1]
-            if np.count_nonzero(window >= saturation) > cfg.max_saturated_fraction * window.size:
+            clipped = bool(np.count_nonzero(window >= saturation)
+                           > cfg.max_saturated_fraction * window.size)
+            # A bright mark may clip; one that never did has something else beside it (a glint)
+            if clipped and (polarity == 'dark' or self._reach.never_clipped()):
                 return self._invalid('saturated', contrast=peak)
         centroid, sigma_centroid, area = deficit_centroid(deficit, first, last, noise)
         if area <= 0:
@@ -639,24 +658,40 @@ class CentroidMarkTracker:
             # leaves part of it outside (or something else dark is in the ROI).
             return self._invalid('smear cut by the window', contrast=peak)
         # The integrated deficit does not change with blur: a jump means a partly hidden mark.
-        # Rejected frames enter the history too, so a lasting change is accepted after a while.
-        ratio = area / float(np.median(self._areas)) if len(self._areas) >= 3 else 1.0
+        # The area's own noise widens the tolerance (a faint mark's area is noisy).
+        area_noise = 3.0 * noise * math.sqrt(last - first + 1) / area
+        tolerance = math.hypot(cfg.area_tolerance, area_noise)
+        ratio = self._area_ratio(area) if len(self._areas) >= 3 else 1.0
         self._areas.append(area)
         position, sigma = refine_position(deficit, first, last, centroid, sigma_centroid, noise,
                                           x, cfg, self._previous)
-        # The area's own noise widens the tolerance (a faint mark's area is noisy).
-        area_noise = 3.0 * noise * math.sqrt(last - first + 1) / area
-        quality, reason = cfg.quality(snr, ratio, math.hypot(cfg.area_tolerance, area_noise))
+        quality, reason = cfg.quality(snr, ratio, tolerance)
         extent = float(hi - lo + 1)
         if quality < cfg.min_quality or not math.isfinite(position):
             self._previous = None
             return MarkMeasurement(float('nan'), quality, contrast=peak, extent_px=extent,
                                    reason=reason)
         self._previous = position
-        self._reach.found(position, peak, extent)
+        self._reach.found(position, peak, extent, area, clipped)
         self._learn_rows()
         return MarkMeasurement(position, quality, sigma_px=sigma, contrast=peak,
                                extent_px=extent)
+
+    def _area_ratio(self, area: float) -> float:
+        """Return this frame's area over the recent frames' (at least 3 of them).
+
+        Over the median of the recent frames' areas, rejected ones too (a lasting change is
+        accepted after a while), or of the recent frames the mark was found in, whichever is
+        nearer: a few frames spoilt (something entering the ROI bent the baseline) made the
+        median theirs, and the good frames after them were refused ('mark area changed')
+        until they left it.
+        """
+        ratio = area / float(np.median(self._areas))
+        found = list(self._reach.areas)[-int(self.config.area_history):]
+        if len(found) < 3:
+            return ratio
+        other = area / float(np.median(found))
+        return other if abs(other - 1.0) < abs(ratio - 1.0) else ratio
 
     def _learn_rows(self) -> None:
         """Fix the mark's rows and row weights after ``ROW_FRAMES`` frames it was found in."""
