@@ -83,6 +83,7 @@ from microball_ros.core.tracking.priming import (
 from microball_ros.core.tracking.profile import (
     LIGHT_FLANK,
     default_saturation,
+    glint_columns,
     light_level,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
@@ -142,6 +143,8 @@ class PlateMarkTracker:
         self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
         self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
         self._refused = False  # a long smear whose plate could not be learned: all NaN
+        self._clipped: np.ndarray | None = None  # this frame's glint columns
+        self._saturates = False  # the plate's own pixels saturated while priming
         self._offset, self._asymmetry = 0.0, math.nan  # px added to positions; plate_rows
         # A still mark, or one moving less than its width, on a textured plate
         self._still: StillMark | SmallMotion | None = None
@@ -232,6 +235,10 @@ class PlateMarkTracker:
             else:
                 self._prime_textured(regions, frames, self.polarity)
         self._gains.stop_log()
+        # A plate whose own pixels saturate (a bright speckle) has no glints to tell apart
+        self._saturates = self.weights is not None and any(
+            glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
+                          self.config.saturation_level) is not None for frame in frames)
         self.reset()
 
     def _prime_textured(self, regions, frames, polarity: str) -> None:
@@ -447,6 +454,13 @@ class PlateMarkTracker:
                       else default_saturation(region.dtype))
         if saturation is not None and profile.max() >= saturation:
             return self._invalid('saturated')
+        # A dark mark never saturates a pixel: on a plate that did not while priming, a
+        # saturated one is a glint riding beside it, which the fit leaves out rather than
+        # refusing the frame for its residual
+        self._clipped = None if (self.polarity != 'dark' or self.weights is None
+                                 or self._saturates) else (
+            glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
+                          cfg.saturation_level))
         prediction, lost = self._predictor.predict(), self._predictor.lost()
         f = self.exposure_fraction
         kernel = None
@@ -502,6 +516,11 @@ class PlateMarkTracker:
                 return ('too dark', 0.0, math.nan)
         size = plate.size
         window, valid, j0 = grid_window(d, start, size, size // 2)
+        if self._clipped is not None:  # a glint's columns are no data
+            index = np.arange(j0, j0 + size)
+            inside = (index >= 0) & (index < w)
+            valid[inside] &= ~self._clipped[index[inside]]
+            window[~valid] = 0.0
         tolerance = REACQUIRE_MATCH if lost else cfg.match_tolerance + 0.5
         # Restarted from short kernels if poor; then, on a plain plate only, fitted without
         # what passes beside the mark (a whole-frame smear on a speckle often fits that poorly:
