@@ -233,25 +233,6 @@ def _bar_frames(count, rng, disc_from=None):
     return frames, truths
 
 
-def test_the_centroid_judges_a_clear_frame_by_the_areas_it_was_found_with():
-    # Frames spoilt by something entering the ROI (their baseline bent, their areas off) are
-    # refused, but their areas entered the recent ones: the clear frames after them were
-    # refused too ('mark area changed') until the spoilt areas left the median (5 frames on a
-    # blob, 3-5 on a bar in blind set 5). The areas of the frames the mark was found in judge
-    # them too now.
-    from microball_ros.core.tracking.centroid import CentroidMarkTracker
-
-    frames, truths = _bar_frames(40, np.random.default_rng(6))
-    tracker = CentroidMarkTracker((0, 0, 240, 40))
-    for frame in frames[:30]:
-        assert tracker.measure(frame).valid
-    area = float(np.median(tracker._areas))
-    tracker._areas.extend([0.7 * area] * 6)  # six spoilt frames
-    found = tracker.measure(frames[30])
-    assert found.valid, found.reason
-    assert abs(found.position_px - truths[30]) < 0.1
-
-
 def test_a_saturated_glint_beside_a_bright_mark_that_never_clips_is_not_measured_with_it():
     # A bright bar (+50 %, far from clipping) and, from frame 20, a glint along its rows
     # riding 12 px beside it (saturated over 3 columns, its halo over 8). The bar's dip and

@@ -131,7 +131,6 @@ class Reach:
         self.steps: deque[float] = deque(maxlen=STEP_HISTORY)
         self.peaks: deque[float] = deque(maxlen=STEP_HISTORY)
         self.extents: deque[float] = deque(maxlen=STEP_HISTORY)
-        self.areas: deque[float] = deque(maxlen=STEP_HISTORY)
         self.clipped: deque[bool] = deque(maxlen=STEP_HISTORY)  # saturated pixels in the window
 
     def copy(self) -> 'Reach':
@@ -141,13 +140,12 @@ class Reach:
         other.steps.extend(self.steps)
         other.peaks.extend(self.peaks)
         other.extents.extend(self.extents)
-        other.areas.extend(self.areas)
         other.clipped.extend(self.clipped)
         return other
 
-    def found(self, position: float, peak: float, extent: float, area: float,
+    def found(self, position: float, peak: float, extent: float,
               clipped: bool = False) -> None:
-        """Record the mark found at ``position`` (px) with this ``peak``, extent and area.
+        """Record the mark found at ``position`` (px) with this ``peak`` and ``extent``.
 
         ``clipped``: saturated pixels in its window.
         """
@@ -156,7 +154,6 @@ class Reach:
         self.last, self.since = position, 0
         self.peaks.append(peak)
         self.extents.append(extent)
-        self.areas.append(area)
         self.clipped.append(clipped)
 
     def never_clipped(self) -> bool:
@@ -661,7 +658,8 @@ class CentroidMarkTracker:
         # The area's own noise widens the tolerance (a faint mark's area is noisy).
         area_noise = 3.0 * noise * math.sqrt(last - first + 1) / area
         tolerance = math.hypot(cfg.area_tolerance, area_noise)
-        ratio = self._area_ratio(area) if len(self._areas) >= 3 else 1.0
+        # Rejected frames enter the history too, so a lasting change is accepted after a while.
+        ratio = area / float(np.median(self._areas)) if len(self._areas) >= 3 else 1.0
         self._areas.append(area)
         position, sigma = refine_position(deficit, first, last, centroid, sigma_centroid, noise,
                                           x, cfg, self._previous)
@@ -672,26 +670,10 @@ class CentroidMarkTracker:
             return MarkMeasurement(float('nan'), quality, contrast=peak, extent_px=extent,
                                    reason=reason)
         self._previous = position
-        self._reach.found(position, peak, extent, area, clipped)
+        self._reach.found(position, peak, extent, clipped)
         self._learn_rows()
         return MarkMeasurement(position, quality, sigma_px=sigma, contrast=peak,
                                extent_px=extent)
-
-    def _area_ratio(self, area: float) -> float:
-        """Return this frame's area over the recent frames' (at least 3 of them).
-
-        Over the median of the recent frames' areas, rejected ones too (a lasting change is
-        accepted after a while), or of the recent frames the mark was found in, whichever is
-        nearer: a few frames spoilt (something entering the ROI bent the baseline) made the
-        median theirs, and the good frames after them were refused ('mark area changed')
-        until they left it.
-        """
-        ratio = area / float(np.median(self._areas))
-        found = list(self._reach.areas)[-int(self.config.area_history):]
-        if len(found) < 3:
-            return ratio
-        other = area / float(np.median(found))
-        return other if abs(other - 1.0) < abs(ratio - 1.0) else ratio
 
     def _learn_rows(self) -> None:
         """Fix the mark's rows and row weights after ``ROW_FRAMES`` frames it was found in."""
