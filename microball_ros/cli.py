@@ -7,6 +7,7 @@ and exit status 1. The work itself lives in app/ and below; this file parses and
 
 import argparse
 import json
+import math
 import os
 import sys
 
@@ -192,7 +193,22 @@ def cmd_track(args):
                 for name in ('slider', 'stator')}
         print(f"wrote {len(columns['time'])} frames to {args.output} "
               f"(lost: slider {lost['slider']}, stator {lost['stator']})")
+        centres = _centre_errors(result.centre_sigma_px)
+        if centres:
+            print(centres)
     return 0
+
+
+def _centre_errors(sigmas):
+    """Return a line on where the marks' centres lie on their plates, or '' if exactly."""
+    if all(sigmas.get(name) == 0.0 for name in ('slider', 'stator')):
+        return ''
+    parts = []
+    for name in ('slider', 'stator'):
+        sigma = sigmas.get(name, math.nan)
+        parts.append(f'{name} not estimated' if math.isnan(sigma) else f'{name} +-{sigma:.3f} px')
+    return (f"marks' centres on their plates: {', '.join(parts)} (one error common to "
+            'every frame, in the sigma columns; it cancels in velocities and accelerations)')
 
 
 def cmd_render(args):

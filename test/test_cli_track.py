@@ -143,3 +143,28 @@ def test_polarity_and_preview(paper_video, tmp_path):
     result = _run('track', path, '--slider-roi', '1,1,40,10', '--stator-roi', '1,20,40,10',
                   '--meters-per-pixel', '1e-6', '--polarity', 'grey', '--output', 'x.csv')
     assert result.returncode == 2 and 'polarity' in result.stderr
+
+
+def test_track_says_how_well_a_textured_marks_centre_is_known(tmp_path, capsys):
+    """The error of a textured mark's centre is one in every frame: said once, in sigma too."""
+    from tracking_scenes import SceneSpec, plates
+    from tracking_scenes import render as render_scene
+
+    scene = render_scene(SceneSpec(plates=plates(shape='cross', width=40.0, height=40.0,
+                                                 texture=8.0)), 90, seed=6)
+    write_image_sequence(tmp_path / 'frames', scene.frames)
+    rois = {name: ','.join(map(str, roi)) for name, roi in scene.rois.items()}
+    output = tmp_path / 'out.csv'
+    assert main(['track', str(tmp_path / 'frames'), '--slider-roi', rois['slider'],
+                 '--stator-roi', rois['stator'], '--meters-per-pixel', '1e-6', '--fps', '30',
+                 '--exposure', repr(scene.spec.exposure), '--output', str(output)]) == 0
+    said = capsys.readouterr().out.splitlines()[-1]
+    assert said.startswith("marks' centres on their plates: slider +-")
+    table = np.genfromtxt(output, delimiter=',', names=True)
+    for name in ('slider', 'stator'):
+        centre = float(said.split(f'{name} +-')[1].split(' px')[0]) * 1e-6
+        # the centre's part is in every frame's sigma (printed to 0.001 px)
+        assert 0.0 < centre <= np.nanmin(table[f'{name}_sigma']) + 0.5e-9
+        error = table[f'{name}_position'] - scene.truth[name] * 1e-6
+        assert abs(float(np.nanmean(error))) < 3.0 * centre + 3.0 * float(
+            np.nanstd(error)) / np.sqrt(np.count_nonzero(np.isfinite(error)))

@@ -163,8 +163,15 @@ def test_textured_plate_positions_equal_track_value_for_value(ros_context, textu
         _assert_published_equals(camera.positions, expected, times)
         assert [m.header.frame_id for m in camera.positions] == [f'cam{k % 3}'
                                                                  for k in range(n)]
-        camera.wait_for_status(lambda s: _values(s).get('priming') == 'primed on 60 frames',
-                               'primed on 60 frames')
+        status = camera.wait_for_status(
+            lambda s: _values(s).get('priming') == 'primed on 60 frames', 'primed on 60 frames')
+        # How well each textured mark's centre is known, as track says (one error in every
+        # frame, in the sigmas published)
+        centres = dict(part.split() for part in _values(status)['centre_sigma_px'].split(', '))
+        for name in ('slider', 'stator'):
+            assert float(centres[name]) == pytest.approx(expected.centre_sigma_px[name],
+                                                         abs=1e-4)
+            assert expected.centre_sigma_px[name] > 0
         harness.spin_until(lambda: len(camera.debug) == n, 30.0, f'{n} debug images')
         assert [d.header for d in camera.debug] == [p.header for p in camera.positions]
         assert tracker.diagnostics.counts['errors'] == 0

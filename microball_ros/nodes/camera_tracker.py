@@ -23,7 +23,9 @@ frames are therefore those ``track(frames, rois, meters_per_pixel, 30.0, times=s
 returns, value for value (topic mode assumes an exposure of half the frame period, as that
 call does without ``exposure``). The price: positions are published late by up to
 ``prime_frames`` frames, once: a camera at 30 fps gets nothing for the first 2 s, then those
-2 s of positions together. /diagnostics says 'priming: n/60 frames' meanwhile. A video
+2 s of positions together. /diagnostics says 'priming: n/60 frames' meanwhile, and then each
+mark's ``centre_sigma_px`` (how well its centre on a textured plate is known: one error in
+every frame, in the published sigmas too; core.tracking.plate_rows). A video
 (``video_path``) shorter than ``prime_frames`` is primed on all its frames at its end. The
 kept frames are held in memory (60 frames of 720 x 480 mono8: 21 MB); ``prime_frames`` 0
 publishes each frame at once, unprimed (as before priming existed).
@@ -152,12 +154,15 @@ def debug_image(frame, rois, positions_px, labels=None):
 class TrackerDiagnostics(NodeDiagnostics):
     """NodeDiagnostics plus the priming state: 'priming: n/M frames', then how it ended.
 
+    Once primed, 'centre_sigma_px' too: each mark's centre_sigma_px ('slider 0.0500, ...').
+
     While the node learns, the status message says so; a priming cut short by a pause of the
     images is a warning for one period (the 'priming' value keeps saying it).
     """
 
     def __init__(self, node, **kwargs):
         self.priming = ''
+        self.centres = ''  # once primed: each mark's centre_sigma_px
         self._warning = ''
         super().__init__(node, **kwargs)
 
@@ -173,6 +178,8 @@ class TrackerDiagnostics(NodeDiagnostics):
             status.values.append(KeyValue(key='priming', value=self.priming))
             if self.priming.startswith('priming') and status.message == 'ok':
                 status.message = f'learning the marks: {self.priming}'
+        if self.centres:
+            status.values.append(KeyValue(key='centre_sigma_px', value=self.centres))
         if self._warning:
             status.level = max(status.level, DiagnosticStatus.WARN)
             status.message = (self._warning if status.message == 'ok'
@@ -323,6 +330,9 @@ class CameraTracker(Node):
                                    f'it: {error!r}')
         self.diagnostics.priming = (f'primed on {len(held)} frames' if len(held) >= wanted
                                     else f'primed on {len(held)} of {wanted} frames')
+        # How well each mark's centre is known: one error in every frame (in the sigmas too)
+        self.diagnostics.centres = ', '.join(f'{name} {mark.centre_sigma_px:.4f}'
+                                             for name, mark in self._tracker.marks.items())
         for frame, stamp, frame_id in held:
             self._track(frame, stamp, frame_id)
 

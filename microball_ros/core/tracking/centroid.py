@@ -295,6 +295,16 @@ class CentroidMarkTracker:
         return self._background
 
     @property
+    def centre_sigma_px(self) -> float:
+        """Return the standard error of the mark's centre common to every frame: 0 (px).
+
+        The deficit's centroid is the mark's exposure-averaged centre, exact on average on a
+        plain plate. (On a textured plate the texture pulls it: method 'auto' learns the
+        plate there, and says what its centre's error is.)
+        """
+        return 0.0
+
+    @property
     def learned(self) -> dict:
         """Return what was learned: the polarity, the static background, the mark's rows."""
         learned: dict = {'polarity': self.polarity} if self.polarity else {}

@@ -92,6 +92,11 @@ class LearnedMarkTracker:
         self._blur = 0.0
 
     @property
+    def centre_sigma_px(self) -> float:
+        """Return NaN: where the template's centre lies on the mark is not estimated."""
+        return math.nan
+
+    @property
     def learned(self) -> dict:
         """Return what was learned: polarity, half-width (px) and template (or empty)."""
         if self.template is None:

@@ -29,7 +29,8 @@ averaged over the exposure. The tracker
    positions the first plate measures, on a row flat field if there is one; kept if it fits
    better); a texture moves the mark's edges by 0.1-0.3 px, so the positions are then offset
    to where its edges, row by row, are most nearly mirror-symmetric
-   (core.tracking.plate_rows.edge_offset);
+   (core.tracking.plate_rows.edge_offset), with that centre's standard error (one error in
+   every frame, in each position's standard error: ``centre_sigma_px``);
 2. per frame divides the row-weighted profile by the static field and by the frame's light: a
    straight line fitted on ``LIGHT_FLANK`` px either side of the mark (robustly, so that a
    particle over a flank does not tilt it: profile.light_level), to the profile over the whole
@@ -146,6 +147,7 @@ class PlateMarkTracker:
         self._clipped: np.ndarray | None = None  # this frame's glint columns
         self._saturates = False  # the plate's own pixels saturated while priming
         self._offset, self._asymmetry = 0.0, math.nan  # px added to positions; plate_rows
+        self._offset_sigma = 0.0  # px: the offset's standard error (NaN: not measured)
         # A still mark, or one moving less than its width, on a textured plate
         self._still: StillMark | SmallMotion | None = None
         self._moved = False  # ... that moved since ``reset``
@@ -178,8 +180,24 @@ class PlateMarkTracker:
             learned.update(polarity=self.polarity, half_width=self._half, texture=self.texture,
                            template=self.plate.values.copy(), center=self.plate.center,
                            offset=self._offset, sigma_scale=self._sigma_scale,
-                           edge_asymmetry=self._asymmetry)
+                           edge_asymmetry=self._asymmetry, offset_sigma=self._offset_sigma)
         return learned
+
+    @property
+    def centre_sigma_px(self) -> float:
+        """Return the standard error of where the mark's centre is put (px; NaN: unknown).
+
+        One error, the same in every frame (a texture under the mark moves with it), in each
+        position's ``sigma_px`` too; velocities and accelerations are free of it. 0 for the
+        centroid on a plain plate (exact on average); NaN for the centroid on a textured
+        plate whose plate could not be learned (its texture pulls the centroid by an amount
+        not measured).
+        """
+        if self._still is not None and not self._moved:
+            return self._still.centre_sigma
+        if self.plate is not None and self.weights is not None:
+            return self._offset_sigma
+        return math.nan if self.texture >= TEXTURE_SCORE else 0.0
 
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
@@ -245,13 +263,14 @@ class PlateMarkTracker:
         """On a textured plate, learn the plate (a long smear's, or relearned) and calibrate."""
         start = smear_start(regions, polarity, self.exposure_fraction)
         self._motion = None if start is None else start[4]  # a long smear (smear.py)
+        self._offset_sigma = math.nan  # until the edges measure it (a long smear's: never)
         self._learn(regions, start)
         if self._motion is not None:
             self._check_smear(frames)
         elif self.plate is not None:
             self._relearn(regions, frames)
             tracked = self._track_priming(frames, self.measure)
-            self._offset, self._asymmetry = edge_offset(
+            self._offset, self._asymmetry, self._offset_sigma = edge_offset(
                 regions if self.flat is None else [r / self.flat for r in regions],
                 self.weights, tracked[0], tracked[2], self._outer,
                 1.0 if polarity == 'dark' else -1.0)
@@ -313,8 +332,8 @@ class PlateMarkTracker:
         (``PLAIN_MARGIN``). The centroid is exact on average for any mark and blur: the
         plate's positions are then offset by the mean difference of the two tracks (its
         origin, the mid-point of the outer edges, is hundredths of a pixel off the mark's
-        centre on average). The mark's rows and row weights are learned from the plate's
-        track (``mark_rows``).
+        centre on average; that mean's standard error is the centre's). The mark's rows and
+        row weights are learned from the plate's track (``mark_rows``).
         """
         centroid, reference, _ = tracked
         self._learn(regions, found=centroid)
@@ -336,7 +355,10 @@ class PlateMarkTracker:
         if np.any(lost) or not better:
             self._forget()
             return
-        self._offset = float(np.mean(centroid[both] - plate[both]))
+        difference = centroid[both] - plate[both]
+        self._offset = float(np.mean(difference))
+        self._offset_sigma = (float(np.std(difference, ddof=1) / math.sqrt(difference.size))
+                              if difference.size > 1 else math.nan)
         self._calibrate(tracked)
 
     def _forget(self) -> None:
@@ -346,6 +368,7 @@ class PlateMarkTracker:
         self._half = self._outer = self._whole = 8.0
         self._shift, self._rms, self._sigma_scale = 0.0, 1.0, 1.0
         self._offset, self._asymmetry, self._still = 0.0, math.nan, None
+        self._offset_sigma = 0.0
         self._still_at = None
         self._gains.forget_spread()
         self._guard.forget()
@@ -562,8 +585,9 @@ class PlateMarkTracker:
             return (reason, quality, peak)
         self._predictor.add(position)
         self._kernel = (blur, curve)
+        centre = self._offset_sigma if math.isfinite(self._offset_sigma) else 0.0
         return MarkMeasurement(position + self.roi[0] + self._offset, quality,
-                               sigma_px=sigma * self._sigma_scale,
+                               sigma_px=math.hypot(sigma * self._sigma_scale, centre),
                                contrast=peak, extent_px=last - first)
 
     def _start_gathering(self, frame) -> None:

@@ -20,8 +20,10 @@ class MarkMeasurement:
 
     ``position_px``: image column of the mark centre averaged over the exposure (NaN when
     invalid); ``quality`` in [0, 1] (valid iff >= the configured ``min_quality``);
-    ``sigma_px``: estimated 1-sigma noise of the position; ``contrast``: peak relative deficit;
-    ``extent_px``: length of the (blurred) mark; ``reason``: why the sample is invalid, or ''.
+    ``sigma_px``: the position's standard error (its noise, and on a textured plate the error
+    of where the mark's centre lies, the same in every frame); ``contrast``: peak relative
+    deficit; ``extent_px``: length of the (blurred) mark; ``reason``: why the sample is
+    invalid, or ''.
     """
 
     position_px: float
@@ -60,8 +62,10 @@ class TrackResult:
     """Tracked positions of a sequence: arrays per mark name, all of the length of ``time``.
 
     ``position`` in m, ``position_px`` in image columns, ``quality`` in [0, 1], ``sigma_px``
-    the estimated noise; invalid samples are NaN with a low quality; ``polarity`` the learned
-    polarity per mark ('dark' or 'bright'; absent if the mark was never found).
+    the position's standard error; invalid samples are NaN with a low quality; ``polarity``
+    the learned polarity per mark ('dark' or 'bright'; absent if the mark was never found);
+    ``centre_sigma_px`` the part of ``sigma_px`` that is one error in every frame: where the
+    mark's centre lies on a textured plate (px; 0 on a plain plate, NaN if not estimated).
     """
 
     time: np.ndarray
@@ -75,6 +79,7 @@ class TrackResult:
     exposure: float
     names: tuple[str, ...] = field(default=())
     polarity: dict[str, str] = field(default_factory=dict)
+    centre_sigma_px: dict[str, float] = field(default_factory=dict)
 
     def to_columns(self) -> dict[str, np.ndarray]:
         """Return the position-CSV columns (docs/design.md section 5) as an ordered dict.

@@ -86,6 +86,7 @@ class SmallMotion:
         self.center = 0.0  # ROI px at shift 0 (``learn``)
         self.extent = 0.0
         self.residual = 1.0
+        self.centre_sigma = math.nan  # px: the centre's standard error (``learn``)
         self.reach = float(self.limit)
 
     @classmethod
@@ -127,13 +128,12 @@ class SmallMotion:
         if not (np.all(np.isfinite(shifts)) and 0 < small.residual < STATIC * depth
                 and found_there(regions, polarity, start, extent)):
             return None
-        offset, asymmetry = edge_offset(regions, weights, start + shifts,
-                                        np.zeros((len(regions), 2)), extent,
-                                        1.0 if polarity == 'dark' else -1.0,
-                                        max(MOVE, extent))
+        offset, asymmetry, centre_sigma = edge_offset(
+            regions, weights, start + shifts, np.zeros((len(regions), 2)), extent,
+            1.0 if polarity == 'dark' else -1.0, max(MOVE, extent))
         if not math.isfinite(asymmetry):
             return None
-        small.center, small.extent = start + offset, extent
+        small.center, small.extent, small.centre_sigma = start + offset, extent, centre_sigma
         small.reach = min(float(np.max(np.abs(shifts))) + REACH, float(limit))
         return small
 
@@ -182,7 +182,8 @@ class SmallMotion:
             return MarkMeasurement(math.nan, 0.0, reason='moved')
         if light is None or not light[0] > 0 or rms > MATCH * self.residual:
             return MarkMeasurement(math.nan, 0.0, reason='mark partly hidden')
-        return MarkMeasurement(x + self.center + shift, 1.0, sigma_px=sigma,
+        centre = self.centre_sigma if math.isfinite(self.centre_sigma) else 0.0
+        return MarkMeasurement(x + self.center + shift, 1.0, sigma_px=math.hypot(sigma, centre),
                                extent_px=2.0 * self.extent)
 
 

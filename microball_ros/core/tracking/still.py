@@ -163,6 +163,7 @@ class StillMark:
         self.inverse = np.linalg.pinv(self.design)
         self.variance = float(np.linalg.inv(self.design.T @ self.design)[3, 3])
         self.residual = 1.0  # the priming frames' median residual RMS (``learn``)
+        self.centre_sigma = math.nan  # px: the centre's standard error (``learn``)
 
     @classmethod
     def learn(cls, regions, polarity: str, pad: int, still: bool):
@@ -197,14 +198,14 @@ class StillMark:
                 and float(np.median(fits[:, 3])) < STATIC * float(np.ptp(reference))
                 and found_there(regions, polarity, start, extent)):
             return None
-        offset, asymmetry = edge_offset(regions, weights, np.full(len(regions), start),
-                                        np.zeros((len(regions), 2)), extent,
-                                        1.0 if polarity == 'dark' else -1.0,
-                                        max(MOVE, extent))
+        offset, asymmetry, centre_sigma = edge_offset(
+            regions, weights, np.full(len(regions), start), np.zeros((len(regions), 2)),
+            extent, 1.0 if polarity == 'dark' else -1.0, max(MOVE, extent))
         if not math.isfinite(asymmetry):
             return None
         still_mark = cls(weights, lo, start + offset, reference, extent)
         still_mark.residual = float(np.median(fits[:, 3]))
+        still_mark.centre_sigma = centre_sigma
         return still_mark if still_mark.residual > 0 else None
 
     def _fit(self, region):
@@ -225,5 +226,6 @@ class StillMark:
             return MarkMeasurement(math.nan, 0.0, reason='moved')
         if rms > MATCH * self.residual:
             return MarkMeasurement(math.nan, 0.0, reason='mark partly hidden')
-        return MarkMeasurement(x + self.center + shift, 1.0, sigma_px=sigma,
+        centre = self.centre_sigma if math.isfinite(self.centre_sigma) else 0.0
+        return MarkMeasurement(x + self.center + shift, 1.0, sigma_px=math.hypot(sigma, centre),
                                extent_px=2.0 * self.extent)

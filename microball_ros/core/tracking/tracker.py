@@ -161,4 +161,5 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         reason={n: [r[n].reason for r in rows] for n in names},
         meters_per_pixel=tracker.meters_per_pixel, fps=tracker.fps,
         exposure=tracker.exposure, names=names,
-        polarity={n: m.polarity for n, m in tracker.marks.items() if m.polarity})
+        polarity={n: m.polarity for n, m in tracker.marks.items() if m.polarity},
+        centre_sigma_px={n: m.centre_sigma_px for n, m in tracker.marks.items()})
