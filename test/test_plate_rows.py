@@ -173,7 +173,7 @@ def test_a_blob_is_put_where_its_deficit_is_most_nearly_mirror_symmetric():
 
 
 def _mark_rows(deficit, center=48, half=10):
-    """Return (rows, weights) of ``deficit`` as edge_offset takes them: deep rows and 3 more."""
+    """Return ``deficit``'s rows as edge_offset takes them (deep rows and 3 more), weights."""
     weights = np.clip(deficit[:, center - half:center + half + 1].mean(axis=1), 0.0, None)
     weights[weights < 0.3 * weights.max()] = 0.0
     deep = np.flatnonzero(weights > 0)
@@ -207,7 +207,7 @@ def test_the_centres_standard_error_covers_what_a_texture_does_to_it():
     # 45 marks: the two estimates in quadrature (edge_offset's) held 91 % of the errors within
     # two of them, 96 % within three; the rows' jackknife alone 64 % within two, the random
     # textures alone 84 %. (On the blind sets' 45 textured marks, through the whole tracker:
-    # 99 % of the per-frame errors within two standard errors, 75 % without.)
+    # 99 % of the per-frame errors within two standard errors, 77 % without.)
     found = _centre_errors(np.random.default_rng(11), 45)
     errors, jackknife, textures = found.T
     assert np.all(np.isfinite(found))
