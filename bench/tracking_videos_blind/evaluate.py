@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Run `microball track` (default options) on every case of out/ and score it against truth.csv.
 
-Also score a simple template-matching baseline.
+Also score a simple template-matching baseline. ``in2sig``: the share of the judged frames
+whose error is within two of the standard errors the tracker reports (its CSV's sigma).
 
 usage: evaluate.py [case ...]     (prints the table; also writes out/<case>/track.csv)
 """
@@ -68,9 +69,10 @@ def run_tracker(d, meta):
     dt = time.time() - t
     n = meta['frames']
     pos = {m: np.full(n, np.nan) for m in MARKS}
+    sigma = {m: np.full(n, np.nan) for m in MARKS}
     if p.returncode != 0:
         last = (p.stderr.strip().splitlines() or ['(no stderr)'])[-1]
-        return pos, f'exit {p.returncode}: {last}', dt
+        return pos, sigma, f'exit {p.returncode}: {last}', dt
     mpp = meta['meters_per_pixel']
     with open(out) as fh:
         rows = list(csv.DictReader(fh))
@@ -82,8 +84,9 @@ def run_tracker(d, meta):
             v = r.get(f'{m}_position', '')
             if v not in ('', None) and v.lower() != 'nan':
                 pos[m][i] = float(v) / mpp
+                sigma[m][i] = float(r.get(f'{m}_sigma') or 'nan') / mpp
     note = '' if len(rows) == n else f'{len(rows)} rows for {n} frames'
-    return pos, note, dt
+    return pos, sigma, note, dt
 
 
 def baseline(d, meta, T, V):
@@ -122,7 +125,8 @@ def baseline(d, meta, T, V):
     return pos
 
 
-def score(est, t, v):
+def score(est, t, v, sigma=None):
+    """Error statistics; with ``sigma`` (px per frame), the share within two of them."""
     rep = np.isfinite(est)
     good = rep & (v >= 0.5) & np.isfinite(t)
     anyv = rep & (v > 0) & np.isfinite(t)
@@ -137,6 +141,8 @@ def score(est, t, v):
     s['clear'] = int(clear.sum())
     s['lost'] = int((clear & ~rep).sum())
     s['covered'] = int((rep & (v == 0)).sum())
+    s['in2'] = (float(np.mean(np.abs(e[good]) <= 2 * sigma[good]))
+                if sigma is not None and good.any() else np.nan)
     return s
 
 
@@ -145,7 +151,7 @@ def main():
     hdr = (f"{'case':27s} {'mark':6s} {'cat':8s} {'n':>4s} {'RMS':>7s} {'bias':>8s} "
            f"{'max':>7s} {'lost':>5s} {'covd':>4s} {'>2px':>4s} | "
            f"{'bRMS':>7s} {'bbias':>8s} {'bmax':>7s} | "
-           f"{'CRB':>6s} {'RMS/CRB':>7s} {'target':>6s}  verdict")
+           f"{'CRB':>6s} {'RMS/CRB':>7s} {'in2sig':>6s} {'target':>6s}  verdict")
     lines = [hdr, '-' * len(hdr)]
     print(hdr)
     print('-' * len(hdr), flush=True)
@@ -156,10 +162,10 @@ def main():
             continue
         meta = json.load(open(os.path.join(d, 'case.json')))
         T, V = load_truth(d)
-        pos, note, dt = run_tracker(d, meta)
+        pos, sigma, note, dt = run_tracker(d, meta)
         bpos = baseline(d, meta, T, V)
         for m in MARKS:
-            s = score(pos[m], T[m], V[m])
+            s = score(pos[m], T[m], V[m], sigma[m])
             b = score(bpos[m], T[m], V[m])
             crb = meta.get('crb_px', {}).get(m)
             target = 0.03 if meta['category'] == 'plain' else 0.1
@@ -183,7 +189,7 @@ def main():
                   f"{s['bias']:+8.4f} {s['max']:7.3f} {s['lost']:5d} {s['covered']:4d} "
                   f"{s['gross']:4d} | {b['rms']:7.4f} {b['bias']:+8.4f} {b['max']:7.3f} | "
                   f"{(crb or float('nan')):6.4f} {s['rms'] / (crb or float('nan')):7.2f} "
-                  f'{target:6.2f}  {verdict}')
+                  f"{100 * s['in2']:5.0f}% {target:6.2f}  {verdict}")
             print(ln, flush=True)
             lines.append(ln)
         extra = f"  ({nm}: tracker {dt:.1f}s{'; ' + note if note else ''})"
