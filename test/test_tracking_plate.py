@@ -29,6 +29,7 @@ from microball_ros.core.tracking.priming import (
     motion_jitter,
     plate_is_textured,
     row_flat_field,
+    scatter_scale,
     steadier,
     texture_score,
 )
@@ -287,10 +288,12 @@ def test_without_a_plate_the_centroids_standard_errors_are_scaled_to_its_scatter
         0.0, 0.03, 60)
 
     def scale(sigma):
-        return plate_module.scatter_scale(
+        return scatter_scale(
             positions, [MarkMeasurement(float(p), 1.0, sigma_px=sigma) for p in positions])
 
-    assert 1.8 < scale(0.015) < 2.2  # scattered twice its standard errors
+    # scattered twice its standard errors: the scale is the scatter about the motion over them
+    assert 1.8 < scale(0.015) < 2.2
+    assert scale(0.015) == pytest.approx(motion_jitter([positions])[0] / 0.015)
     assert scale(0.04) == 1.0  # never scaled down
     assert scale(0.005) == 1.0  # 6 times: the motion's fit failed, not the tracker
     # With the plate dropped (a margin no plate meets), every frame is the centroid's, its

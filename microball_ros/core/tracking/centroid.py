@@ -46,15 +46,11 @@ from microball_ros.core.tracking.profile import (
 )
 from microball_ros.core.tracking.reach import Reach
 from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.rows_guard import mark_rows
 from microball_ros.core.tracking.search import Dip, locate, locate_within
 from microball_ros.core.tracking.subpixel import deficit_centroid, refine_position
 
-ROW_FRAMES = 20
-MIN_ROW_FRAMES = 5
-ROW_FRACTION = 0.03
-ROW_MARGIN = 3
-ROW_TOLERANCE = 0.06
-ROW_SPREADS = 5.0
+ROW_FRAMES = 20  # frames the mark is found in before its rows are fixed (rows_guard)
 # A smear whose extent (against the learned plate) exceeds LONG_SMEAR of the ROI's width is
 # measured against the plate; its window runs to SMEAR_THRESHOLD of the peak (or the noise),
 # and a deficit outside it over CUT_FRACTION of the area inside rejects the frame.
@@ -64,37 +60,6 @@ SHORT_FIRST = 0.6
 CUT_FRACTION = 0.05
 LOST_FRACTION = 0.2  # priming frames lost with their own baseline: smears may be long
 SMEAR_GROWTH = 2.0  # a long smear's extent (90th percentile) over its shortest (10th)
-
-
-def mark_rows(weights: list[np.ndarray],
-              height: int) -> tuple[slice | None, np.ndarray | None, float]:
-    """Return the ROI rows the mark occupies and its row weights there, from several frames.
-
-    The weight of a row is proportional to the mark's integrated deficit in it, which motion
-    along x does not change: the median over the frames is the mark's own, less noisy than
-    one frame's. The rows run from the first to the last whose median weight exceeds
-    ``ROW_FRACTION`` of the largest, widened by ``ROW_MARGIN``. Third, the largest L1
-    distance of one frame's row weights from these that a clear mark shows: ``ROW_TOLERANCE``
-    plus ``ROW_SPREADS`` times the median distance in the frames given. (None, None, inf)
-    with fewer than ``MIN_ROW_FRAMES`` frames or when that leaves fewer than 2 rows.
-    """
-    weights = [w for w in weights if w.size == height]
-    if len(weights) < MIN_ROW_FRAMES:
-        return None, None, math.inf
-    stack = np.array(weights)
-    median = np.median(stack, axis=0)
-    above = np.flatnonzero(median > ROW_FRACTION * float(median.max()))
-    if above.size == 0:
-        return None, None, math.inf
-    first, last = max(int(above[0]) - ROW_MARGIN, 0), min(int(above[-1]) + ROW_MARGIN + 1,
-                                                           height)
-    if last - first < 2:
-        return None, None, math.inf
-    band = median[first:last] / float(median[first:last].sum())
-    own = stack[:, first:last] / np.maximum(stack[:, first:last].sum(axis=1, keepdims=True),
-                                            1e-12)
-    spread = float(np.median(np.abs(own - band).sum(axis=1)))
-    return slice(first, last), band, ROW_TOLERANCE + ROW_SPREADS * spread
 
 
 def cut_smear(deficit: np.ndarray, lo: int, hi: int, pad: int, noise: float) -> bool:

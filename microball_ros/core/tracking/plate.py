@@ -40,8 +40,8 @@ averaged over the exposure. The tracker
    the predicted motion (a sinusoid of the priming track's frequency), gated around the
    predicted position (``MotionPredictor``) so texture dips never win; after a loss over the
    whole ROI (plate_search.search_kernels), where a first fit poorer than priming's is refused
-   and the ``CANDIDATES`` best matches are tried in turn (a particle near the mark matches
-   better than the mark). A match ``RELIGHT`` px or more from where it was predicted (or
+   and the ``plate_search.CANDIDATES`` best matches are tried in turn (a particle near the mark
+   matches better than the mark). A match ``RELIGHT`` px or more from where it was predicted (or
    without a prediction) has the light fitted again beside it;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly, with fallbacks
    for a poor fit: ``PlateModel.fit_frame``): the texture, common to data and model, is signal;
@@ -72,13 +72,13 @@ from microball_ros.core.tracking.image import Roi, check_roi, roi_region
 from microball_ros.core.tracking.plate_learn import LearnedPlate, learn_plate
 from microball_ros.core.tracking.plate_model import PlateModel, grid_window
 from microball_ros.core.tracking.plate_rows import edge_offset
-from microball_ros.core.tracking.plate_search import match_plate, plate_level, search_kernels
+from microball_ros.core.tracking.plate_search import plate_level, search_plate
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
     agreeing,
-    motion_jitter,
     row_flat_field,
+    scatter_scale,
     steadier,
     texture_score,
 )
@@ -88,7 +88,7 @@ from microball_ros.core.tracking.profile import (
     glint_columns,
     light_level,
 )
-from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.results import MarkMeasurement, with_centre
 from microball_ros.core.tracking.rows_guard import RowsGuard
 from microball_ros.core.tracking.small import SmallMotion, moves_little
 from microball_ros.core.tracking.smear import (
@@ -97,6 +97,7 @@ from microball_ros.core.tracking.smear import (
     least_smeared,
     local_kernel,
     path_range,
+    quadratic_kernel,
     smear_start,
     smear_verdict,
 )
@@ -109,29 +110,8 @@ RESTART_BLURS = (0.0, 2.0, 4.0, 8.0)  # fits restarted from these blurs when one
 # is priming.steadier than it by this margin.
 PLAIN_MARGIN = 0.95
 SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the search's start
-MAX_SIGMA_SCALE = 2.5  # the fit's standard errors scaled up to this much (``_calibrate``)
 REACQUIRE_MATCH = 1.4  # after a loss, a poorer fit may be false (a shadow leaving: 2.7 px off)
 RELIGHT = 8.0  # px: a match this far from the prediction has the light fitted again beside it
-CANDIDATES = 3  # after a loss, the best matches fitted in turn (a particle beside the mark)
-
-
-def scatter_scale(positions: np.ndarray, found: list[MarkMeasurement]) -> float:
-    """Return how much to scale the standard errors by: the priming track's scatter over them.
-
-    ``positions``: the priming frames' track (NaN: none), ``found`` its measurements. A
-    standard error counts the pixel noise only; what a learned plate leaves of a texture, or
-    the background of a pattern fixed in the image, scatters the positions too. The track's
-    scatter about a smooth periodic motion (``motion_jitter``), against the RMS of the
-    standard errors there, between 1 and ``MAX_SIGMA_SCALE`` (a larger ratio is the motion
-    fit's failure, not the tracker's: 1). Measured on the centroid behind a window pattern
-    (the bench's ``static_bright``): 2.47 on the priming frames, 2.57 over the whole video.
-    """
-    sigmas = np.array([m.sigma_px for m in found if m.valid])
-    jitter = motion_jitter([positions])[0]
-    if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
-        return 1.0
-    ratio = jitter / float(np.sqrt(np.mean(sigmas ** 2)))
-    return ratio if 1.0 < ratio <= MAX_SIGMA_SCALE else 1.0
 
 
 class PlateMarkTracker:
@@ -507,9 +487,8 @@ class PlateMarkTracker:
             kernel = local_kernel(prediction.previous, prediction.column, prediction.following,
                                   motion.omega, f)
         elif prediction is not None and math.isfinite(prediction.before):
-            kernel = (abs(prediction.following - prediction.previous) / 2.0 * f,
-                      (prediction.following - 2 * prediction.column + prediction.previous)
-                      * f * f / 2.0)
+            kernel = quadratic_kernel(prediction.previous, prediction.column,
+                                      prediction.following, f)
         gated = prediction if prediction is not None and math.isfinite(prediction.spread) \
             else None
         if gated is not None:
@@ -520,11 +499,12 @@ class PlateMarkTracker:
         if d is None:
             return self._invalid('too dark')
         failure = None
-        for found in self._search(d, gated, kernel):
+        for match in search_plate(plate, d, gated, kernel, self._motion or self._periodic,
+                                  self._motion is not None, self._half + cfg.pad_px):
             # A next-best match refused leaves no trace in the guards (the best's does, as ever)
             saved = None if failure is None else (copy.deepcopy(self._gains), len(
                 self._guard.log or ()))
-            outcome = self._fit_found(profile, region, d, found, gated, lost,
+            outcome = self._fit_found(profile, region, d, match, gated, lost,
                                       restart=failure is None)
             if isinstance(outcome, MarkMeasurement):
                 return outcome
@@ -600,9 +580,9 @@ class PlateMarkTracker:
             return (reason, quality, peak)
         self._predictor.add(position)
         self._kernel = (blur, curve)
-        centre = self._offset_sigma if math.isfinite(self._offset_sigma) else 0.0
         return MarkMeasurement(position + self.roi[0] + self._offset, quality,
-                               sigma_px=math.hypot(sigma * self._sigma_scale, centre),
+                               sigma_px=with_centre(sigma * self._sigma_scale,
+                                                    self._offset_sigma),
                                contrast=peak, extent_px=last - first)
 
     def _start_gathering(self, frame) -> None:
@@ -629,30 +609,6 @@ class PlateMarkTracker:
         found = [self.measure(each) for each in frames]
         self.revised = found[:-1]
         return found[-1]
-
-    def _search(self, d, prediction, kernel):
-        """Return the (column, blur, curve) to fit the plate at: the best match first.
-
-        Gated around the prediction (one kernel, the predicted one) when there is one: that
-        match. Else over the whole ROI with a bank of kernels (``search_kernels``): the best
-        ``CANDIDATES`` matches. Empty if the gate is outside the ROI.
-        """
-        if self.plate is None:
-            return []
-        if prediction is not None:
-            gate = 6.0 * prediction.spread + 3.0
-            lo = int(math.floor(prediction.column - gate))
-            hi = int(math.ceil(prediction.column + gate)) + 1
-            kernels = [kernel if kernel is not None else (0.0, 0.0)]
-        else:
-            lo, hi = 0, d.size
-            kernels = search_kernels(self._motion or self._periodic, self._motion is None,
-                                     kernel)
-        lo, hi = max(lo, 0), min(hi, d.size)
-        if hi <= lo:
-            return []
-        return match_plate(self.plate, d, lo, hi, kernels, self._half + self.config.pad_px,
-                           1 if prediction is not None else CANDIDATES)
 
     def _invalid(self, reason, quality=0.0, contrast=math.nan):
         self._predictor.add(math.nan)

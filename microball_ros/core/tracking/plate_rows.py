@@ -107,8 +107,8 @@ def edge_offset(regions, weights, positions, kernels, extent: float, sign: float
     # The profile's crossings keep what the verdict does not apply: that much of its move
     # is how far apart the two places it could be are (NaN: a still blob's, not measured)
     unapplied = (1.0 - share) * abs(move)
-    spreads = [spread(plates, row_weights, origin, extent, most, sign)
-               for spread in (jackknife_spread, texture_spread)]
+    spreads = [jackknife_spread(plates, row_weights, origin, extent, most),
+               texture_spread(plates, row_weights, origin, extent, most, sign)]
     known = [value for value in spreads if math.isfinite(value)]
     return EdgeOffset(offset, asymmetry, math.hypot(unapplied, *known) if known else math.nan)
 
@@ -149,17 +149,15 @@ def _verdict(plates, weights, origin, extent, most) -> tuple[float, float, float
 
 
 def jackknife_spread(plates: np.ndarray, weights: np.ndarray, origin: int, extent: float,
-                     most: float = MAX_MOVE, sign: float = 1.0) -> float:
+                     most: float = MAX_MOVE) -> float:
     """Return the standard error of ``plate_center``'s offset, from its rows (px).
 
     The delete-one-group jackknife over ``JACKKNIFE_GROUPS`` contiguous bands of rows: the
     verdict again without each band, the variances of the 4, 6 and 8 bands averaged. It sees
     the texture the mark's own rows hold (a fine speckle's 0.16 px), but bands a coarse
     texture joins from row to row are not independent: alone it was 1.2-2 times low on
-    synthetic plates of 1-5 px grain. ``sign`` is unused (``texture_spread``'s signature).
-    NaN if fewer rows than bands.
+    synthetic plates of 1-5 px grain. NaN if fewer rows than bands.
     """
-    del sign
     count = plates.shape[0]
     variances = []
     for groups in JACKKNIFE_GROUPS:

@@ -11,6 +11,7 @@ from microball_ros.core.tracking.search import peak_offset
 SEARCH_BLURS = (0.0, 16.0, 32.0, 64.0, 96.0, 128.0)  # px; 128: a whole-period exposure
 CURVED = 16.0  # px: a path curved more than this (a turning point) is not a straight blur
 NEXT_GAIN = 0.3  # match_plate: a next-best match needs at least this gain
+CANDIDATES = 3  # after a loss, the best matches fitted in turn (a particle beside the mark)
 
 
 def search_kernels(motion, blurs: bool, kernel=None) -> list[tuple[float, float]]:
@@ -88,3 +89,28 @@ def plate_level(full: PlateModel | None, s: float, sign: float, kernel,
     model = full.model(s - round(s), abs(blur), curve)
     level = 1.0 - sign * model.take(np.arange(width) - j0, mode='wrap')
     return np.clip(level, 0.05, None)
+
+
+def search_plate(plate: PlateModel, d: np.ndarray, prediction, kernel, motion, smeared: bool,
+                 reach: float) -> list[tuple[float, float, float]]:
+    """Return the (column, blur, curve) to fit the plate at: the best match first.
+
+    Gated around ``prediction`` (core.tracking.predict's; one kernel, the predicted
+    ``kernel``) when there is one: that match. Else over the whole ROI with a bank of kernels
+    (``search_kernels``: ``motion``'s, and straight blurs unless ``smeared``, a long smear's
+    plate): the best ``CANDIDATES`` matches. ``reach``: ``match_plate``'s. Empty if the gate
+    is outside the ROI.
+    """
+    if prediction is not None:
+        gate = 6.0 * prediction.spread + 3.0
+        lo = int(math.floor(prediction.column - gate))
+        hi = int(math.ceil(prediction.column + gate)) + 1
+        kernels = [kernel if kernel is not None else (0.0, 0.0)]
+    else:
+        lo, hi = 0, d.size
+        kernels = search_kernels(motion, not smeared, kernel)
+    lo, hi = max(lo, 0), min(hi, d.size)
+    if hi <= lo:
+        return []
+    return match_plate(plate, d, lo, hi, kernels, reach,
+                       1 if prediction is not None else CANDIDATES)

@@ -14,6 +14,15 @@ import numpy as np
 from microball_ros.core.errors import InputError
 
 
+def with_centre(noise: float, centre: float) -> float:
+    """Return a position's standard error: its noise's and its centre's, in quadrature.
+
+    ``centre``: the standard error of where the mark's centre lies, the same in every frame
+    (core.tracking.plate_rows); NaN (not estimated) leaves the noise's alone.
+    """
+    return math.hypot(noise, centre) if math.isfinite(centre) else noise
+
+
 @dataclass(frozen=True)
 class MarkMeasurement:
     """One mark in one frame.

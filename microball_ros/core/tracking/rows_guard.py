@@ -3,17 +3,54 @@
 As the centroid tracker's (core.tracking.centroid): something over some of the mark's rows (a
 ball, a shadow) changes its depth there, so the mark's row weights (``row_weights``: its
 depth per ROI row against the plate on both flanks) depart from its own. Those are learned
-from the frames of a priming pass (``centroid.mark_rows``: the rows it occupies, its weights
-there and how far a clear frame's depart). Something beside the mark (a passing particle)
-spoils one flank only: the weights against the other flank are then the mark's own.
+from the frames of a priming pass (``mark_rows``, the centroid tracker's too: the rows it
+occupies, its weights there and how far a clear frame's depart). Something beside the mark (a
+passing particle) spoils one flank only: the weights against the other flank are then the
+mark's own.
 """
 
 import math
 
 import numpy as np
 
-from microball_ros.core.tracking.centroid import mark_rows
 from microball_ros.core.tracking.profile import row_weights
+
+MIN_ROW_FRAMES = 5
+ROW_FRACTION = 0.03
+ROW_MARGIN = 3
+ROW_TOLERANCE = 0.06
+ROW_SPREADS = 5.0
+
+
+def mark_rows(weights: list[np.ndarray],
+              height: int) -> tuple[slice | None, np.ndarray | None, float]:
+    """Return the ROI rows the mark occupies and its row weights there, from several frames.
+
+    The weight of a row is proportional to the mark's integrated deficit in it, which motion
+    along x does not change: the median over the frames is the mark's own, less noisy than
+    one frame's. The rows run from the first to the last whose median weight exceeds
+    ``ROW_FRACTION`` of the largest, widened by ``ROW_MARGIN``. Third, the largest L1
+    distance of one frame's row weights from these that a clear mark shows: ``ROW_TOLERANCE``
+    plus ``ROW_SPREADS`` times the median distance in the frames given. (None, None, inf)
+    with fewer than ``MIN_ROW_FRAMES`` frames or when that leaves fewer than 2 rows.
+    """
+    weights = [w for w in weights if w.size == height]
+    if len(weights) < MIN_ROW_FRAMES:
+        return None, None, math.inf
+    stack = np.array(weights)
+    median = np.median(stack, axis=0)
+    above = np.flatnonzero(median > ROW_FRACTION * float(median.max()))
+    if above.size == 0:
+        return None, None, math.inf
+    first, last = max(int(above[0]) - ROW_MARGIN, 0), min(int(above[-1]) + ROW_MARGIN + 1,
+                                                           height)
+    if last - first < 2:
+        return None, None, math.inf
+    band = median[first:last] / float(median[first:last].sum())
+    own = stack[:, first:last] / np.maximum(stack[:, first:last].sum(axis=1, keepdims=True),
+                                            1e-12)
+    spread = float(np.median(np.abs(own - band).sum(axis=1)))
+    return slice(first, last), band, ROW_TOLERANCE + ROW_SPREADS * spread
 
 
 class RowsGuard:

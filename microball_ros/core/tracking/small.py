@@ -33,7 +33,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from microball_ros.core.tracking.plate_rows import edge_offset
-from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.results import MarkMeasurement, with_centre
 from microball_ros.core.tracking.still import (
     FLANK,
     MATCH,
@@ -182,8 +182,8 @@ class SmallMotion:
             return MarkMeasurement(math.nan, 0.0, reason='moved')
         if light is None or not light[0] > 0 or rms > MATCH * self.residual:
             return MarkMeasurement(math.nan, 0.0, reason='mark partly hidden')
-        centre = self.centre_sigma if math.isfinite(self.centre_sigma) else 0.0
-        return MarkMeasurement(x + self.center + shift, 1.0, sigma_px=math.hypot(sigma, centre),
+        return MarkMeasurement(x + self.center + shift, 1.0,
+                               sigma_px=with_centre(sigma, self.centre_sigma),
                                extent_px=2.0 * self.extent)
 
 

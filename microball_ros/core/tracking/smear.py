@@ -217,6 +217,17 @@ def _trimmed(t, y, omega, harmonics, fraction, keep) -> float:
     return float(residual @ residual)
 
 
+def quadratic_kernel(previous: float, column: float, following: float,
+                     fraction: float) -> tuple[float, float]:
+    """Return the (blur, curve) kernel of the quadratic through three positions a frame apart.
+
+    ``fraction``: the exposure's share of the frame period (``local_kernel`` without a
+    motion's frequency).
+    """
+    return (abs(following - previous) / 2.0 * fraction,
+            (following - 2.0 * column + previous) * fraction * fraction / 2.0)
+
+
 def local_kernel(previous: float, column: float, following: float, omega: float,
                  fraction: float) -> tuple[float, float]:
     """Return the (blur, curve) kernel of the frame at ``column`` between its neighbours.
@@ -230,8 +241,7 @@ def local_kernel(previous: float, column: float, following: float, omega: float,
     try:
         coef = np.linalg.solve(basis, np.array([previous, column, following]))
     except np.linalg.LinAlgError:
-        return abs(following - previous) / 2.0 * fraction, \
-            (following - 2.0 * column + previous) * fraction * fraction / 2.0
+        return quadratic_kernel(previous, column, following, fraction)
     u = _U * fraction
     path = coef[0] + coef[1] * np.cos(omega * u) + coef[2] * np.sin(omega * u)
     fitted = np.linalg.lstsq(_PATH, path, rcond=None)[0]

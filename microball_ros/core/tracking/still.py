@@ -41,7 +41,7 @@ from scipy.ndimage import label, uniform_filter
 
 from microball_ros.core.tracking.plate_rows import edge_offset
 from microball_ros.core.tracking.profile import row_weights
-from microball_ros.core.tracking.results import MarkMeasurement
+from microball_ros.core.tracking.results import MarkMeasurement, with_centre
 
 STILL = 2.0  # px: the centroid's priming positions (10th-90th percentile) within this: still
 TEXTURE = 0.02  # RMS beside the mark about a parabola along each row, of its level
@@ -226,6 +226,6 @@ class StillMark:
             return MarkMeasurement(math.nan, 0.0, reason='moved')
         if rms > MATCH * self.residual:
             return MarkMeasurement(math.nan, 0.0, reason='mark partly hidden')
-        centre = self.centre_sigma if math.isfinite(self.centre_sigma) else 0.0
-        return MarkMeasurement(x + self.center + shift, 1.0, sigma_px=math.hypot(sigma, centre),
+        return MarkMeasurement(x + self.center + shift, 1.0,
+                               sigma_px=with_centre(sigma, self.centre_sigma),
                                extent_px=2.0 * self.extent)
