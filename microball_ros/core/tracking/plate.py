@@ -38,11 +38,12 @@ averaged over the exposure. The tracker
    the mark's contrast is relative to the plate next to it in the same frame (flicker does not
    look like a covered mark); then searches the mark by a matched filter of ``D`` smeared by
    the predicted motion (a sinusoid of the priming track's frequency), gated around the
-   predicted position (``MotionPredictor``) so texture dips never win; after a loss over the
-   whole ROI (plate_search.search_kernels), where a first fit poorer than priming's is refused
-   and the ``plate_search.CANDIDATES`` best matches are tried in turn (a particle near the mark
-   matches better than the mark). A match ``RELIGHT`` px or more from where it was predicted (or
-   without a prediction) has the light fitted again beside it;
+   predicted position (``MotionPredictor``; from the seventh frame on, by the priming track's
+   frequency until its recurrence has the frames it needs) so texture dips never win; after a
+   loss over the whole ROI (plate_search.search_kernels), where a first fit poorer than
+   priming's is refused and the ``plate_search.CANDIDATES`` best matches are tried in turn (a
+   particle near the mark matches better than the mark). A match ``RELIGHT`` px or more from
+   where it was predicted (or without a prediction) has the light fitted again beside it;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly, with fallbacks
    for a poor fit: ``PlateModel.fit_frame``): the texture, common to data and model, is signal;
 4. checks the mark's path clear of the ROI edges, its contrast ``g`` against recent frames
@@ -261,6 +262,9 @@ class PlateMarkTracker:
         self._saturates = self.weights is not None and any(
             glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
                           self.config.saturation_level) is not None for frame in frames)
+        motion = self._motion or self._periodic
+        if self.plate is not None and motion is not None:  # the first frames gated, too
+            self._predictor.use_frequency(motion.omega, motion.spread)
         self.reset()
 
     def _prime_textured(self, regions, frames, polarity: str) -> None:
@@ -365,6 +369,7 @@ class PlateMarkTracker:
         self._still_at = None
         self._gains.forget_spread()
         self._guard.forget()
+        self._predictor.use_frequency(math.nan, 0.0)
         self._refused = False
         self.reset()
 

@@ -18,6 +18,7 @@ ASYMMETRY_GAIN = 3.0  # ... and D that much less symmetric about them: the symme
 # PlateModel.fit_clear: columns off the fit by CLIP noise are left out, in at most
 # CLEAR_ROUNDS rounds, while those left keep CLEAR_INFORMATION of the position's information
 CLIP, CLEAR_ROUNDS, CLEAR_INFORMATION = 4.0, 3, 0.5
+SMEARED_KEPT = 64  # PlateModel.smeared: kernels kept (a search's bank is 6-19)
 
 _U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
 _U2 = _U * _U - 1.0 / 12.0
@@ -166,6 +167,8 @@ class PlateModel:
         self.spectrum = np.zeros(self.k.size, complex)
         self.values = np.zeros(self.size)
         self.frames = 0
+        self._smeared: dict[tuple[float, float], np.ndarray] = {}  # see ``smeared``
+        self._smeared_of: np.ndarray | None = None
 
     def add(self, window, valid, delta, blur, curve, half) -> None:
         """Accumulate one frame's grid-aligned deficit (``delta`` = s - origin column)."""
@@ -194,6 +197,22 @@ class PlateModel:
             return np.fft.irfft(spectrum, self.size)
         return (np.fft.irfft(spectrum, self.size),
                 np.fft.irfft(-1j * self.k * spectrum, self.size))
+
+    def smeared(self, blur: float, curve: float) -> np.ndarray:
+        """Return ``model(0, blur, curve)`` (read-only), kept while ``spectrum`` is the same.
+
+        A search over the whole ROI smears the plate by the same bank of kernels in every
+        frame it runs; they are computed once (at most ``SMEARED_KEPT`` kept).
+        """
+        if self._smeared_of is not self.spectrum or len(self._smeared) >= SMEARED_KEPT:
+            self._smeared, self._smeared_of = {}, self.spectrum
+        key = (float(blur), float(curve))
+        found = self._smeared.get(key)
+        if found is None:
+            found = self.model(0.0, blur, curve)
+            found.flags.writeable = False
+            self._smeared[key] = found
+        return found
 
     def mark_center(self, reach: float) -> float:
         """Return the mark's centre (px from the origin): the mid-point of its outer edges.

@@ -50,7 +50,7 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
     scores = []
     for blur, curve in kernels:
         core = min(int(math.ceil(reach + 0.5 * blur + 0.25 * abs(curve))) + 2, c - 1)
-        template = plate.model(0.0, blur, curve)[c - core:c + core + 1]
+        template = plate.smeared(blur, curve)[c - core:c + core + 1]
         norm = math.sqrt(float(template @ template))
         if norm <= 0:
             continue
