@@ -215,6 +215,37 @@ def test_disturbed_finds_a_local_dip_beside_the_mark_but_not_a_smooth_trend():
     assert off[:9].all() and np.flatnonzero(off).max() <= 11
 
 
+def test_disturbed_finds_a_particle_at_the_roi_end_that_bends_the_baseline():
+    """Take a dark particle 2 px from an ROI's end, which bends the baseline beside it.
+
+    The baseline's other lobe makes the run look not local; fitted again without it, the
+    plate is flat again.
+    """
+    from microball_ros.core.tracking.profile import Baseline, disturbed, relative_deficit
+
+    rng = np.random.default_rng(4)
+    columns = np.arange(101)
+    plate = 140.0 * (1.0 + 0.002 * rng.standard_normal(101))
+    profile = plate * (1.0 - 0.5 * np.exp(-0.5 * ((columns - 20.0) / 3.0) ** 2))  # the mark
+    profile *= 1.0 - 0.35 * np.exp(-0.5 * ((columns - 95.0) / 3.0) ** 2)  # the particle
+    keep = np.ones(101, dtype=bool)
+    keep[5:36] = False  # the mark and its guard
+    baseline = Baseline(101, 3)
+
+    def against(values):
+        return lambda kept: relative_deficit(values, baseline.fit(values, kept), 'dark')
+
+    refit = against(profile)
+    deficit = refit(keep)
+    assert np.min(deficit[80:90]) < -0.02  # the baseline's other lobe beside the particle
+    assert not disturbed(deficit, keep).any()  # not local: left as it is, as before
+    off = disturbed(deficit, keep, refit)
+    assert off[92:99].all() and np.flatnonzero(off).min() >= 85
+    # Without the particle nothing is taken
+    clean = plate * (1.0 - 0.5 * np.exp(-0.5 * ((columns - 20.0) / 3.0) ** 2))
+    assert not disturbed(against(clean)(keep), keep, against(clean)).any()
+
+
 def _bar_frames(count, rng, disc_from=None):
     """Return frames of a bar (8 px, 40 % dark) moving 3 px a frame, and its columns.
 

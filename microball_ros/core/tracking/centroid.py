@@ -24,6 +24,7 @@ when the priming frames, each with its own baseline, show long smears or lose fr
 """
 
 from collections import deque
+import functools
 import math
 
 import numpy as np
@@ -395,7 +396,8 @@ class CentroidMarkTracker:
         # Columns something else darkens (``disturbed``: a dip beside the mark) stay out
         off = np.ones(w, dtype=bool)
         off[max(lo - margin, 0):hi + margin + 1] = False
-        off = disturbed(deficit, off)
+        refit = functools.partial(self._deficit, profile, polarity=polarity)  # on given columns
+        off = disturbed(deficit, off, refit)
         for attempt in range(3):
             # Plain plate = everything outside the mark and a guard band; refit on it twice.
             keep = ~off
@@ -409,7 +411,7 @@ class CentroidMarkTracker:
             if deficit is None:
                 return self._invalid('too dark')
             if attempt == 0:  # against the fitted baseline, what the envelope hid
-                off |= disturbed(deficit, keep)
+                off |= disturbed(deficit, keep, refit)
             dip = self._locate(deficit, 0.0, cfg.threshold, cfg.merge_gap_px)
             if dip is None:
                 return self._invalid('no other dip')
