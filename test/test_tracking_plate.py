@@ -23,6 +23,7 @@ import microball_ros.core.tracking.plate as plate_module
 from microball_ros.core.tracking.plate import PlateMarkTracker
 from microball_ros.core.tracking.plate_model import PlateModel, kernel_derivatives
 from microball_ros.core.tracking.plate_solver import PlateSolver, motion_curvatures
+import microball_ros.core.tracking.priming as priming_module
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
     deep_rows,
@@ -559,7 +560,7 @@ def test_motion_jitter_is_the_noise_about_a_periodic_motion():
     assert all(math.isnan(v) for v in motion_jitter([noisy[:12], quiet[:12]]))
 
 
-def test_steadier_wants_less_jitter_and_tracks_that_agree_as_their_errors_allow():
+def test_steadier_wants_less_jitter_and_tracks_that_agree_as_their_errors_allow(monkeypatch):
     """Two trackers of the same frames: the centroid (noise 0.03 px) and a plate (0.015 px).
 
     Both measure the same pixels: the centroid's error is the plate's plus a part of its own
@@ -591,6 +592,15 @@ def test_steadier_wants_less_jitter_and_tracks_that_agree_as_their_errors_allow(
     # A plate no steadier by its standard errors: the centroid stays.
     assert not steadier([sticking + centroid_error, sticking + plate_error],
                         [sigmas[0], np.full(n.size, 0.029)], 0.95)[0]
+    # Two disturbed frames (a particle passing while priming: the plate's standard error ten
+    # times its usual, its position off by as much) do not decide it
+    disturbed = sigmas[1].copy()
+    disturbed[[9, 10]] = 0.15
+    off = sticking + plate_error
+    off[[9, 10]] += 0.15
+    assert steadier([sticking + centroid_error, off], [sigmas[0], disturbed], 0.95)[0]
+    monkeypatch.setattr(priming_module, 'DISTURBED_SIGMA', math.inf)  # as it was
+    assert not steadier([sticking + centroid_error, off], [sigmas[0], disturbed], 0.95)[0]
 
 
 @pytest.mark.parametrize(('shape', 'seed', 'bound'), [('cross', 3, 0.08), ('pair', 3, 0.08)])

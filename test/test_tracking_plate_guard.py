@@ -290,6 +290,38 @@ def test_a_saturated_glint_beside_a_bright_mark_that_never_clips_is_not_measured
             assert not found.valid or abs(found.position_px - truth) < 0.1, n
 
 
+def test_a_particle_beside_the_mark_is_not_joined_to_it_as_a_part():
+    # A bar (9 px, 40 % dark, rows 5-35) moves 2 px a frame; from frame 20 a particle (r 7,
+    # 85 % dark, rows 0-14) rides 14 px beside it, edge to edge: parts that close are joined
+    # (a bar pair is one mark), which made one dip of both, 40 px wide, whose rows are not
+    # the bar's: every frame was lost. Joined only up to 1.5 times the widest the mark was
+    # (plus 8 px), the bar is measured, the particle left out.
+    from microball_ros.core.tracking.centroid import CentroidMarkTracker
+    from microball_ros.core.tracking.search import dip_extent
+
+    rng = np.random.default_rng(8)
+    columns, rows = np.meshgrid(np.arange(240.0), np.arange(40.0))
+    tracker = CentroidMarkTracker((0, 0, 240, 40))
+    for n in range(45):
+        truth = 60.0 + 2.0 * n
+        frame = np.full((40, 240), 150.0)
+        frame[5:35] *= 1.0 - 0.4 * np.clip(5.0 - np.abs(columns[5:35] - truth), 0.0, 1.0)
+        if n >= 20:
+            distance = np.hypot(columns - (truth - 4.5 - 14.0 - 7.0), rows - 7.0)
+            frame *= 1.0 - 0.85 * np.clip(7.5 - distance, 0.0, 1.0)
+        frame = np.clip(frame + rng.normal(0.0, 1.0, frame.shape), 0, 255).astype(np.uint8)
+        found = tracker.measure(frame)
+        assert found.valid, (n, found.reason)
+        assert abs(found.position_px - truth) < 0.1, n
+    # The join itself: two parts 10 apart are one dip, but not beyond ``widest``
+    smoothed = np.zeros(100)
+    smoothed[20:30] = 1.0
+    smoothed[40:50] = 0.8
+    assert dip_extent(smoothed, 25, 0.1, gap=12) == (20, 49)
+    assert dip_extent(smoothed, 25, 0.1, gap=12, widest=29.0) == (20, 29)
+    assert dip_extent(smoothed, 25, 0.1, gap=12, widest=30.0) == (20, 49)
+
+
 def test_the_centroid_takes_the_dip_within_the_marks_reach_not_a_deeper_one_beyond():
     # A bar (8 px, 40 % dark) moves 3 px a frame; from frame 20 a disc twice as deep sits
     # 100 px ahead of it. The strongest dip of the ROI is the disc: taken for the mark, it was

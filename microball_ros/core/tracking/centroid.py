@@ -426,7 +426,8 @@ class CentroidMarkTracker:
         excluded dip (``_exclude``) to any such other one, else None.
         """
         smoothing = int(self.config.smoothing_px)
-        dip = locate(deficit, noise, fraction, smoothing, gap)
+        widest = self._reach.widest()
+        dip = locate(deficit, noise, fraction, smoothing, gap, widest)
         gate, exclude = self._gate, self._exclude
         if (gate is None or gate[0] <= dip.column <= gate[1]) and (
                 exclude is None or not exclude[0] <= dip.column <= exclude[1]):
@@ -437,7 +438,7 @@ class CentroidMarkTracker:
             allowed &= (columns < exclude[0]) | (columns > exclude[1])
         if gate is not None:
             allowed &= (columns >= gate[0]) & (columns <= gate[1])
-        near = locate_within(deficit, noise, fraction, smoothing, gap, allowed)
+        near = locate_within(deficit, noise, fraction, smoothing, gap, allowed, widest)
         if near is not None and near.peak >= self._reach.least():
             return near
         return None if exclude is not None else dip

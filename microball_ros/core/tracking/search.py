@@ -39,11 +39,12 @@ class Dip(NamedTuple):
 
 
 def dip_extent(smoothed: np.ndarray, peak_index: int, threshold: float,
-               gap: int = 0) -> tuple[int, int]:
+               gap: int = 0, widest: float = math.inf) -> tuple[int, int]:
     """Return the first and last index around ``peak_index`` where ``smoothed > threshold``.
 
     Runs that reach a quarter of the peak, separated from it by at most ``gap`` samples, are
-    joined (a mark made of several parts, such as two bars, is one mark).
+    joined (a mark made of several parts, such as two bars, is one mark), unless that makes
+    the extent wider than ``widest`` samples (something else beside the mark).
     """
     below = smoothed <= threshold
     left = np.flatnonzero(below[:peak_index])
@@ -57,33 +58,37 @@ def dip_extent(smoothed: np.ndarray, peak_index: int, threshold: float,
             before = above[(above < lo) & (above >= lo - gap - 1)]
             if not before.size:
                 break
-            lo = int(before.min())
-            run = np.flatnonzero(below[:lo])
-            lo = int(run[-1]) + 1 if run.size else 0
+            run = np.flatnonzero(below[:int(before.min())])
+            start = int(run[-1]) + 1 if run.size else 0
+            if hi - start + 1 > widest:
+                break
+            lo = start
         while True:
             after = above[(above > hi) & (above <= hi + gap + 1)]
             if not after.size:
                 break
-            hi = int(after.max())
-            run = np.flatnonzero(below[hi + 1:])
-            hi = hi + int(run[0]) if run.size else smoothed.size - 1
+            run = np.flatnonzero(below[int(after.max()) + 1:])
+            end = int(after.max()) + int(run[0]) if run.size else smoothed.size - 1
+            if end - lo + 1 > widest:
+                break
+            hi = end
     return lo, hi
 
 
 def locate(deficit: np.ndarray, noise: float, fraction: float, smoothing_px: int,
-           gap: int = 0) -> Dip:
+           gap: int = 0, widest: float = math.inf) -> Dip:
     """Return the strongest dip of the deficit smoothed over ``smoothing_px`` columns.
 
     Its extent is where the smoothed deficit exceeds ``fraction`` of the peak and three times
     the noise of the smoothed deficit (``noise / sqrt(smoothing_px)`` per column), parts
-    separated by at most ``gap`` columns joined.
+    separated by at most ``gap`` columns joined while it stays ``widest`` columns or narrower.
     """
     smoothed = smooth(deficit, int(smoothing_px))
-    return _dip(smoothed, int(np.argmax(smoothed)), noise, fraction, smoothing_px, gap)
+    return _dip(smoothed, int(np.argmax(smoothed)), noise, fraction, smoothing_px, gap, widest)
 
 
 def locate_within(deficit: np.ndarray, noise: float, fraction: float, smoothing_px: int,
-                  gap: int, allowed: np.ndarray) -> Dip | None:
+                  gap: int, allowed: np.ndarray, widest: float = math.inf) -> Dip | None:
     """Return the strongest dip whose peak lies in the ``allowed`` columns, as ``locate``.
 
     None if the largest smoothed deficit there is not a local maximum (the flank of a dip
@@ -97,13 +102,13 @@ def locate_within(deficit: np.ndarray, noise: float, fraction: float, smoothing_
     if not peak > 0 or (k > 0 and smoothed[k - 1] > peak) or (
             k < smoothed.size - 1 and smoothed[k + 1] > peak):
         return None
-    return _dip(smoothed, k, noise, fraction, smoothing_px, gap)
+    return _dip(smoothed, k, noise, fraction, smoothing_px, gap, widest)
 
 
 def _dip(smoothed: np.ndarray, k: int, noise: float, fraction: float, smoothing_px: int,
-         gap: int) -> Dip:
+         gap: int, widest: float = math.inf) -> Dip:
     """Return the dip of the smoothed deficit whose peak is column ``k`` (see ``locate``)."""
     peak = float(smoothed[k])
     threshold = max(fraction * peak, 3.0 * noise / math.sqrt(smoothing_px))
-    lo, hi = dip_extent(smoothed, k, threshold, int(gap))
+    lo, hi = dip_extent(smoothed, k, threshold, int(gap), widest)
     return Dip(k, peak, lo, hi)
