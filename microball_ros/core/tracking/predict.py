@@ -7,9 +7,9 @@ few coefficients fitted over the last periods predict the next frame to a fracti
 without knowing the frequency. With too little history for it (the first frames, or after a
 loss), a mark whose motion's frequency is known from priming (``use_frequency``) is predicted
 by a sinusoid of that frequency and its second harmonic fitted to the last ``WARM_LEAST`` or
-more positions; else it
-falls back to constant velocity, then to the last position. ``Prediction.spread`` says how far
-to trust the prediction (infinite: not at all, the whole ROI is searched).
+more positions; else it falls back to constant velocity, then to the last position.
+``Prediction.spread`` says how far to trust the prediction (infinite: not at all, the whole
+ROI is searched).
 """
 
 from collections import deque
@@ -106,18 +106,16 @@ class MotionPredictor:
         """Return (column, following, spread) from a sinusoid of the known frequency, or None.
 
         Fitted (offset, cosine and sine of the fundamental and the second harmonic) to the
-        positions found among the last
-        ``3 (order + 1) + order`` frames (what the recurrence needs), at least ``WARM_LEAST``;
-        the spread is the fit's residual per degree of freedom widened by the extrapolation
-        (over 170 rendered tracks the next frame was at most 0.65 of the gate away), at least
-        the priming scatter and ``WARM_FLOOR``.
+        positions found among the last ``3 (order + 1) + order`` frames (what the recurrence
+        needs), at least ``WARM_LEAST``; the spread is the fit's residual per degree of freedom
+        widened by the extrapolation (over 170 rendered tracks the next frame was at most 0.65
+        of the gate away), at least the priming scatter and ``WARM_FLOOR``.
         """
         recent = track[-(3 * (self.order + 1) + self.order):]
         frames = np.flatnonzero(np.isfinite(recent)).astype(float)
         if frames.size < WARM_LEAST:
             return None
         frames -= recent.size  # the next frame is at 0
-
 
         def design(t):
             angle = self._omega * np.asarray(t, dtype=float)
