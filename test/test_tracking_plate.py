@@ -127,8 +127,8 @@ def test_a_textured_plates_first_frames_are_searched_where_the_motion_predicts(
     """The priming track's frequency gates the search from the seventh frame on.
 
     Without it the first 19 frames (what the recurrence needs) were searched over the whole
-    ROI: 6 ms a frame against 1.4 gated on the bench's textured_fps15, and poorer (its stator
-    0.27 px RMS over the first 20 frames, 0.19 gated).
+    ROI: 6 ms a frame against 1.4 gated on the bench's textured_fps15, and poorer (the
+    stator of its textured_full: 0.27 px RMS over the first 20 frames, 0.19 gated).
     """
     frames, truth = textured_scene
     tracker = PlateMarkTracker((0, 0, WIDTH, frames.shape[1]), TrackerConfig(), 'mark', 0.5)

@@ -50,7 +50,10 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
     scores = []
     for blur, curve in kernels:
         core = min(int(math.ceil(reach + 0.5 * blur + 0.25 * abs(curve))) + 2, c - 1)
-        template = plate.smeared(blur, curve)[c - core:c + core + 1]
+        # A bank's smears are the same in every frame searched with it: kept (not a gate's one)
+        smeared = plate.smeared(blur, curve) if len(kernels) > 1 else plate.model(0.0, blur,
+                                                                                  curve)
+        template = smeared[c - core:c + core + 1]
         norm = math.sqrt(float(template @ template))
         if norm <= 0:
             continue
