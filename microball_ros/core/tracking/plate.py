@@ -77,10 +77,9 @@ from microball_ros.core.tracking.plate_search import plate_level, search_plate
 from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
-    agreeing,
+    plain_verdict,
     row_flat_field,
     scatter_scale,
-    steadier,
     texture_score,
 )
 from microball_ros.core.tracking.profile import (
@@ -96,9 +95,8 @@ from microball_ros.core.tracking.smear import (
     PeriodicMotion,
     fit_motion,
     least_smeared,
-    local_kernel,
     path_range,
-    quadratic_kernel,
+    predicted_kernel,
     smear_start,
     smear_verdict,
 )
@@ -262,9 +260,6 @@ class PlateMarkTracker:
         self._saturates = self.weights is not None and any(
             glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
                           self.config.saturation_level) is not None for frame in frames)
-        motion = self._motion or self._periodic
-        if self.plate is not None and motion is not None:  # the first frames gated, too
-            self._predictor.use_frequency(motion.omega, motion.spread)
         self.reset()
 
     def _prime_textured(self, regions, frames, polarity: str) -> None:
@@ -294,6 +289,9 @@ class PlateMarkTracker:
         self._gains.learn_spread()  # from the plate's last pass over the priming frames
         if self.texture >= TEXTURE_SCORE and self._motion is None:  # its kernels, from now
             self._periodic = fit_motion(positions, self.exposure_fraction)
+        motion = self._motion or self._periodic
+        if motion is not None:  # the first frames' search gated too (core.tracking.predict)
+            self._predictor.use_frequency(motion.omega, motion.spread)
         self._sigma_scale = scatter_scale(positions, found)
 
     def _check_smear(self, frames) -> None:
@@ -325,12 +323,8 @@ class PlateMarkTracker:
         """On a plain plate, learn the plate and keep it if it tracks better than the centroid.
 
         ``tracked``: the centroid's ``_track_priming``. The plate tracks the priming frames
-        too; it is kept only if it reports every frame the centroid does and is ``steadier``
-        (``PLAIN_MARGIN``). The centroid is exact on average for any mark and blur: the
-        plate's positions are then offset by the mean difference of the two tracks (its
-        origin, the mid-point of the outer edges, is hundredths of a pixel off the mark's
-        centre on average; that mean's standard error is the centre's). The mark's rows and
-        row weights are learned from the plate's track (``mark_rows``).
+        too, and is kept and offset as ``priming.plain_verdict`` says (``PLAIN_MARGIN``). The
+        mark's rows and row weights are learned from the plate's track (``mark_rows``).
         """
         centroid, reference, _ = tracked
         self._learn(regions, found=centroid)
@@ -341,21 +335,12 @@ class PlateMarkTracker:
         self._guard.start_log()
         tracked = self._track_priming(frames, self.measure)
         self._guard.learn(self.roi[3])
-        plate = tracked[0]
-        lost = np.isfinite(centroid) & ~np.isfinite(plate)
-        # Frames where the two disagree grossly (a particle passing pulls one) are left out
-        both = agreeing([centroid, plate])
-        better, self.jitter = steadier(
-            [np.where(both, track, math.nan) for track in (centroid, plate)],
-            [np.array([m.sigma_px if m.valid else math.nan for m in found])
-             for found in (reference, tracked[1])], PLAIN_MARGIN)
-        if np.any(lost) or not better:
+        keep, self.jitter, offset = plain_verdict(centroid, reference, tracked[0], tracked[1],
+                                                  PLAIN_MARGIN)
+        if not keep:
             self._forget()
             return
-        difference = centroid[both] - plate[both]
-        self._offset = float(np.mean(difference))
-        self._offset_sigma = (float(np.std(difference, ddof=1) / math.sqrt(difference.size))
-                              if difference.size > 1 else math.nan)
+        self._offset, self._offset_sigma = offset
         self._calibrate(tracked)
 
     def _forget(self) -> None:
@@ -485,15 +470,8 @@ class PlateMarkTracker:
             glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
                           cfg.saturation_level))
         prediction, lost = self._predictor.predict(), self._predictor.lost()
-        f = self.exposure_fraction
-        kernel = None
-        motion = self._motion or self._periodic
-        if prediction is not None and motion is not None:
-            kernel = local_kernel(prediction.previous, prediction.column, prediction.following,
-                                  motion.omega, f)
-        elif prediction is not None and math.isfinite(prediction.before):
-            kernel = quadratic_kernel(prediction.previous, prediction.column,
-                                      prediction.following, f)
+        kernel = predicted_kernel(prediction, self._motion or self._periodic,
+                                  self.exposure_fraction)
         gated = prediction if prediction is not None and math.isfinite(prediction.spread) \
             else None
         if gated is not None:

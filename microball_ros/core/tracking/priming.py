@@ -240,6 +240,32 @@ def steadier(tracks: list[np.ndarray], sigmas: list[np.ndarray], margin: float,
     return bool(better and apart <= allowed), jitters
 
 
+def plain_verdict(centroid: np.ndarray, reference: list, plate: np.ndarray, found: list,
+                  margin: float) -> tuple[bool, tuple[float, float], tuple[float, float]]:
+    """Return whether to keep a plain plate, the jitters, and its offset and that's error.
+
+    ``centroid``, ``plate``: the two trackers' priming tracks (NaN: none); ``reference``,
+    ``found``: their measurements. Kept only if the plate reports every frame the centroid
+    does and is ``steadier`` by ``margin``, over the frames where the two agree (a particle
+    passing pulls one: ``agreeing``). The centroid is exact on average for any mark and blur:
+    the plate's positions are offset by the mean difference of the two tracks (its origin,
+    the mid-point of the outer edges, is hundredths of a pixel off the mark's centre on
+    average), whose standard error is the centre's.
+    """
+    lost = np.isfinite(centroid) & ~np.isfinite(plate)
+    both = agreeing([centroid, plate])
+    better, jitters = steadier(
+        [np.where(both, track, math.nan) for track in (centroid, plate)],
+        [np.array([m.sigma_px if m.valid else math.nan for m in measured])
+         for measured in (reference, found)], margin)
+    if np.any(lost) or not better:
+        return False, jitters, (0.0, 0.0)
+    difference = centroid[both] - plate[both]
+    sigma = (float(np.std(difference, ddof=1) / math.sqrt(difference.size))
+             if difference.size > 1 else math.nan)
+    return True, jitters, (float(np.mean(difference)), sigma)
+
+
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
                       threshold: float = TEXTURE_SCORE) -> bool:
     """Return True if the plate around the mark carries a texture (``texture_score``).

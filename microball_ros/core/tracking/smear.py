@@ -248,6 +248,25 @@ def local_kernel(previous: float, column: float, following: float, omega: float,
     return abs(float(fitted[1])), float(fitted[2])
 
 
+def predicted_kernel(prediction, motion: 'PeriodicMotion | None',
+                     fraction: float) -> tuple[float, float] | None:
+    """Return the (blur, curve) kernel a frame's prediction (core.tracking.predict) gives.
+
+    Through the previous, predicted and following positions: on ``motion``'s sinusoid when
+    there is one (``local_kernel``), else the quadratic (with the frame before the previous
+    known); None without a prediction.
+    """
+    if prediction is None:
+        return None
+    if motion is not None:
+        return local_kernel(prediction.previous, prediction.column, prediction.following,
+                            motion.omega, fraction)
+    if math.isfinite(prediction.before):
+        return quadratic_kernel(prediction.previous, prediction.column, prediction.following,
+                                fraction)
+    return None
+
+
 def _box_spectrum(size: int, width: float) -> np.ndarray:
     """Return the spectrum of a box of ``width`` px (sum 1) centred on column 0."""
     k = 2.0 * math.pi * np.fft.rfftfreq(size)
