@@ -1,7 +1,9 @@
 """Hard synthetic scenes for the tracker tests, rendered exactly, with known truth.
 
 Independent of core.camera's scene (only its exact box integral is reused): two plates, each
-with a mark of any polarity and shape ('bar', 'cross', 'pair' of bars, 'blob'), moving along x;
+with a mark of any polarity and shape ('bar', 'cross', 'pair' of bars, 'blob', an asymmetric
+'ell': an L of strokes ``stroke`` wide, ``width`` x ``height``, centred on its bounding box),
+moving along x;
 optional surface texture that moves with its plate, a static texture (fixed in the image:
 light added, ``static_texture`` in DN, or a transmission, ``static_transmission`` relative),
 illumination flicker, occlusions, 8- or 16-bit output. Everything is analytic: the textures
@@ -111,17 +113,26 @@ def _mark(spec, cols, rows, centers, psf):
         s = spec.stroke / 2
         terms = [(0.0, s, spec.height / 2, 1.0), (0.0, spec.width / 2, s, 1.0),
                  (0.0, s, s, -1.0)]
+    elif spec.shape == 'ell':  # the upright stroke on the left, the foot at the bottom
+        s = spec.stroke / 2
+        left, foot = -spec.width / 2 + s, spec.height / 2 - s
+        terms = [(left, s, spec.height / 2, 1.0), (0.0, spec.width / 2, s, 1.0, foot),
+                 (left, s, s, -1.0, foot)]
     else:
         raise ValueError(spec.shape)
-    for offset, half_w, half_h, sign in terms:
-        image += sign * np.outer(box_profile(rows, [row], half_h, psf),
+    for offset, half_w, half_h, sign, *down in terms:
+        image += sign * np.outer(box_profile(rows, [row + sum(down)], half_h, psf),
                                  box_profile(cols, np.asarray(centers) + offset, half_w, psf))
     return spec.contrast * image
 
 
 @dataclass
 class Scene:
-    """Rendered frames, the exposure-mean truth per plate (px) and suggested ROIs."""
+    """Rendered frames, the exposure-mean truth per plate (px) and suggested ROIs.
+
+    Truth is the centre of the mark's bounding box; an 'ell''s contrast centroid is
+    ``ell_centroid`` px from it.
+    """
 
     frames: np.ndarray
     truth: dict
@@ -217,6 +228,17 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), pas
         h = plate.height / 2 + 10
         rois[name] = (x0, int(row - h), x1 - x0, int(2 * h))
     return Scene(np.array(frames), truth, rois, spec, expected)
+
+
+def ell_centroid(spec: PlateSpec) -> float:
+    """Return the x of an 'ell''s contrast centroid from its bounding box's centre (px).
+
+    The upright stroke (area ``stroke height``) at ``-width/2 + stroke/2``, the foot
+    (``width stroke``) at 0, their overlap (``stroke^2``) counted once.
+    """
+    s, w, h = spec.stroke, spec.width, spec.height
+    left = -w / 2 + s / 2
+    return left * (s * h - s * s) / (s * h + w * s - s * s)
 
 
 def plates(**changes):

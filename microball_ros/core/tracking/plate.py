@@ -57,6 +57,9 @@ if its priming track passes ``smear_verdict``, else every frame is NaN. A mark s
 priming frames learns no plate: the centroid measures it, or core.tracking.still on a texture;
 one moving less than its own width neither (core.tracking.small). Once such a mark moves, the
 next ``prime_frames`` frames are gathered and it is learned again from them (``_gather``).
+On a plain plate an asymmetric mark (an L, a triangle) is placed at its contrast centroid
+(core.tracking.area_centre: an offset measured over the priming frames; none for a symmetric
+mark).
 """
 
 import copy
@@ -65,6 +68,7 @@ import math
 
 import numpy as np
 
+from microball_ros.core.tracking.area_centre import area_offset
 from microball_ros.core.tracking.background import StaticBackground
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.config import TrackerConfig
@@ -154,6 +158,8 @@ class PlateMarkTracker:
         self._gathered: list | None = None  # frames since it moved, to learn it again from
         self.revised: list[MarkMeasurement] = []  # ``_gather``'s frames measured again
         self._sigma_scale = 1.0  # the standard errors times this (``scatter_scale``)
+        # An asymmetric mark on a plain plate: px to its contrast centroid, standard error
+        self._area: tuple[float, float] = (0.0, 0.0)
         self._guard = RowsGuard(int(self.config.pad_px))  # plain plate: the mark's rows
         self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
 
@@ -180,6 +186,8 @@ class PlateMarkTracker:
                            template=self.plate.values.copy(), center=self.plate.center,
                            offset=self._offset, sigma_scale=self._sigma_scale,
                            edge_asymmetry=self._asymmetry, offset_sigma=self._offset_sigma)
+        if self._area[0] != 0.0:  # an asymmetric mark: to its contrast centroid (px, sigma)
+            learned.update(area_offset=self._area[0], area_offset_sigma=self._area[1])
         return learned
 
     @property
@@ -195,8 +203,8 @@ class PlateMarkTracker:
         if self._still is not None and not self._moved:
             return self._still.centre_sigma
         if self.plate is not None and self.weights is not None:
-            return self._offset_sigma
-        return math.nan if self.texture >= TEXTURE_SCORE else 0.0
+            return with_centre(self._offset_sigma, self._area[1])
+        return math.nan if self.texture >= TEXTURE_SCORE else self._area[1]
 
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
@@ -218,7 +226,7 @@ class PlateMarkTracker:
         """Learn the polarity, whether the plate is textured, and if so the plate; restart."""
         frames = list(frames)
         self._forget()
-        self.texture, self.jitter = 0.0, None
+        self.texture, self.jitter, self._area = 0.0, None, (0.0, 0.0)
         self._fallback.prime(frames)
         if self.polarity is None or len(frames) < 12:
             return
@@ -260,6 +268,10 @@ class PlateMarkTracker:
         self._saturates = self.weights is not None and any(
             glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
                           self.config.saturation_level) is not None for frame in frames)
+        if self.texture < TEXTURE_SCORE and self._still is None and not self._refused:
+            # core.tracking.area_centre (a still mark's own module puts it: on a texture)
+            self._area = area_offset(regions, centroid[0], np.array(
+                [m.extent_px for m in centroid[1]]), self.polarity, int(self.config.pad_px))
         self.reset()
 
     def _prime_textured(self, regions, frames, polarity: str) -> None:
@@ -428,7 +440,19 @@ class PlateMarkTracker:
 
     # -- a frame ---------------------------------------------------------------------------
     def measure(self, frame: np.ndarray) -> MarkMeasurement:
-        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement."""
+        """Measure the mark in one frame (2-D array in DN) and return a MarkMeasurement.
+
+        An asymmetric mark's position is its contrast centroid (core.tracking.area_centre).
+        """
+        found = self._measure(frame)
+        offset, sigma = self._area
+        if offset == 0.0 or not found.valid:
+            return found
+        return dataclasses.replace(found, position_px=found.position_px + offset,
+                                   sigma_px=with_centre(found.sigma_px, sigma))
+
+    def _measure(self, frame: np.ndarray) -> MarkMeasurement:
+        """Measure the mark in one frame as ``measure`` (before ``area_offset``)."""
         if self._refused:
             return self._invalid('long smear on a textured plate not learned')
         plate = self.plate

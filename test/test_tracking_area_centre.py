@@ -1,0 +1,69 @@
+"""An asymmetric mark is placed at its contrast centroid (core.tracking.area_centre).
+
+Scenes from test/tracking_scenes.py: an L (``ell``) whose contrast centroid lies
+``ell_centroid`` px (analytic) from the centre of its bounding box, which the scene's truth
+is; symmetric marks, whose centre every definition agrees on, keep their positions.
+"""
+
+import sys
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, __file__.rsplit('/', 1)[0])
+from tracking_scenes import PlateSpec, SceneSpec, ell_centroid, plates, render  # noqa: E402
+
+from microball_ros.core.tracking import Tracker, track  # noqa: E402
+from microball_ros.core.tracking.area_centre import area_offset  # noqa: E402
+from microball_ros.core.tracking.image import roi_region  # noqa: E402
+
+SCALE = 5e-6
+ELL = dict(shape='ell', width=24.0, height=30.0, stroke=6.0, amplitude=120.0)
+
+
+@pytest.mark.parametrize('contrast,level', [(-100.0, 170.0), (120.0, 50.0)])
+def test_an_ell_is_tracked_at_its_contrast_centroid(contrast, level):
+    # Before: the row-weighted profile's centre, 2.3 px off the L's contrast centroid here
+    # (which is 4.5 px from its bounding box's centre: ell_centroid); a dark and a bright L.
+    spec = SceneSpec(plates=plates(contrast=contrast, level=level, **ELL))
+    scene = render(spec, 90, seed=4)
+    tracker = Tracker(scene.rois, SCALE, spec.fps, spec.exposure)
+    result = track(scene.frames, scene.rois, SCALE, spec.fps, spec.exposure)
+    tracker.prime(scene.frames[:tracker.config.prime_frames])
+    for name, plate in spec.plates.items():
+        centroid = scene.truth[name] + ell_centroid(plate)
+        error = result.position_px[name] - centroid
+        assert np.all(np.isfinite(error)), name
+        assert abs(float(np.mean(error))) < 0.05, name
+        assert float(np.sqrt(np.mean(error ** 2))) < 0.08, name
+        learned = tracker.marks[name].learned
+        # Its standard error is in every position's (one error common to all frames)
+        assert 0 < learned['area_offset_sigma'] < 0.03, name
+        assert np.all(result.sigma_px[name] >= learned['area_offset_sigma'])
+
+
+@pytest.mark.parametrize('shape', ['bar', 'cross', 'pair'])
+def test_a_symmetric_mark_learns_no_offset(shape):
+    spec = SceneSpec(plates=plates(shape=shape, amplitude=120.0))
+    scene = render(spec, 60, seed=5)
+    tracker = Tracker(scene.rois, SCALE, spec.fps, spec.exposure)
+    tracker.prime(scene.frames)
+    for name in spec.plates:
+        assert 'area_offset' not in tracker.marks[name].learned, (shape, name)
+
+
+def test_area_offset_is_the_contrast_centroid_minus_the_positions_given():
+    # Still frames of an L: given its bounding box's centre the offset is ell_centroid; given
+    # the centroid itself it is nothing (under the floor: a symmetric mark's answer).
+    plate = PlateSpec(band=(20.0, 190.0), amplitude=0.0, **{k: v for k, v in ELL.items()
+                                                           if k != 'amplitude'})
+    spec = SceneSpec(plates={'slider': plate})
+    scene = render(spec, 24, seed=6)
+    roi = scene.rois['slider']
+    regions = [roi_region(frame, roi) for frame in scene.frames]
+    box = scene.truth['slider'] - roi[0]
+    extents = np.full(box.size, plate.width)
+    offset, sigma = area_offset(regions, box, extents, 'dark', 6)
+    assert offset == pytest.approx(ell_centroid(plate), abs=max(0.02, 4 * sigma))
+    assert 0 < sigma < 0.02
+    assert area_offset(regions, box + ell_centroid(plate), extents, 'dark', 6) == (0.0, 0.0)
