@@ -192,6 +192,25 @@ def test_the_light_beside_a_mark_is_not_tilted_by_a_particle_over_a_flank(monkey
     assert tilted is not None and abs(tilted[int(center)] - 1.0) > 0.05
 
 
+def test_the_light_beside_a_mark_comes_from_the_clear_flank_when_a_tool_covers_the_other():
+    # A tool reaching into the ROI (an independent set's b24: 36 % of the light over 166
+    # columns, from 16 px beyond the mark's window) covers most of the right flank: the line
+    # through both flanks crossed 0 at the ROI's far end (every such frame 'too dark', 23 of
+    # a bright mark's clear frames lost), and refitted near the median it took the tool's
+    # level (0.8 at the mark). The left flank alone gives the light.
+    from microball_ros.core.tracking import profile
+
+    rng = np.random.default_rng(4)
+    ratio = 1.0 + 0.005 * rng.standard_normal(390)
+    x = np.arange(390)
+    tool = (x >= 84) & (x < 250)
+    ratio[tool] = 0.36 + 0.25 * np.exp(-0.5 * ((x[tool] - 190) / 25.0) ** 2)
+    level = profile.light_level(ratio, 'bright', 45.0, 46.0, flank=48.0)
+    assert level is not None
+    assert abs(level[45] - 1.0) < 0.005
+    assert level.min() > 0
+
+
 def test_disturbed_finds_a_local_dip_beside_the_mark_but_not_a_smooth_trend():
     from microball_ros.core.tracking.profile import disturbed
 

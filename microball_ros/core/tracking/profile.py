@@ -25,6 +25,7 @@ LIGHT_ORDER = 2  # light_level: the light per frame over the ROI, a polynomial o
 LIGHT_FLANK = 48.0  # light_level's flank while tracking: px on either side of the mark
 ONE_SIDE = 24  # light_level: a flank this long alone gives the light's slope (an ROI's end)
 SUSPECT = 3.0  # light_level: a fit scattering this many times the noise is started again
+SIDES_APART = 0.2  # ... from one flank alone if the two flanks' lights differ this much
 
 MAD_TO_SIGMA = 1.4826
 # disturbed: runs of this many plate columns this many noise spreads off the plate, whose
@@ -329,7 +330,11 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
             least = 12
         if np.count_nonzero(keep) < least:
             keep = np.ones(w, dtype=bool)
-    found = _fit_light(ratio, u, keep, order, sign, math.isfinite(center), least)
+    # With flanks the light is a line across the mark: it need be positive only there (a
+    # large dark object beyond a flank tilts it until it crosses 0 at the ROI's far end).
+    within = None if flank is None or not math.isfinite(center) else (
+        np.abs(np.arange(w) - center) <= 0.5 * extent + flank)
+    found = _fit_light(ratio, u, keep, order, sign, math.isfinite(center), least, within)
     if found is None or not math.isfinite(center):
         return None if found is None else found[0]
     # Something large over a flank (a particle) can tilt the first fit so far that its
@@ -344,23 +349,41 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     middle = float(np.median(ratio[keep]))
     near = keep & (np.abs(ratio - middle) <= 4.0 * MAD_TO_SIGMA * float(
         np.median(np.abs(ratio[keep] - middle))))
-    if np.count_nonzero(near) < least:
+    other = _fit_light(ratio, u, near, order, sign, True, least, within) if np.count_nonzero(
+        near) >= least else None
+    if other is not None and other[1] < 0.5 * spread:
+        return other[0]
+    # ... or from one flank alone, when the two flanks' lights differ grossly at the mark:
+    # something dark over most of one (a tool reaching into the ROI) holds the median there
+    # (the light at a bright mark was 0.8 for 1, or 'too dark').
+    left, right = (_fit_light(ratio, u, keep & side, order if np.count_nonzero(keep & side)
+                              >= ONE_SIDE else 0, sign, True, least, within)
+                   if np.count_nonzero(keep & side) >= least else None
+                   for side in (offset < 0, offset > 0))
+    if left is None or right is None:
         return level
-    other = _fit_light(ratio, u, near, order, sign, True, least)
-    return other[0] if other is not None and other[1] < 0.5 * spread else level
+    at = int(np.clip(round(center), 0, w - 1))
+    apart = abs(float(left[0][at] - right[0][at])) / max(
+        float(max(left[0][at], right[0][at])), 1e-12)
+    best = min((left, right), key=lambda fit: fit[1])
+    return best[0] if apart > SIDES_APART and best[1] < 0.5 * spread else level
 
 
-def _fit_light(ratio, u, keep, order, sign, centred, least):
+def _fit_light(ratio, u, keep, order, sign, centred, least, within=None):
     """Return ``light_level``'s fit (level, the spread of the columns kept); None if dark.
 
     Fitted on ``keep``, then again without the columns far off the fit (``centred``: any;
-    else those in a dip), at most 3 times.
+    else those in a dip), at most 3 times. ``within``: the columns where the light must be
+    positive (None: all); elsewhere it is held at least at half its least value there.
     """
     keep = keep.copy()
     for _ in range(3):
         level = np.polyval(np.polyfit(u[keep], ratio[keep], order), u)
-        if not level.min() > 0:
+        least_level = float(level.min() if within is None else level[within].min())
+        if not least_level > 0:
             return None
+        if within is not None:
+            level = np.maximum(level, 0.5 * least_level)
         # Columns far off the light (the mark, found in a dip, or something passing over
         # the plate) are left out, and the light fitted again.
         d = sign * (1.0 - ratio / level)
