@@ -196,6 +196,9 @@ def cmd_track(args):
         centres = _centre_errors(result.centre_sigma_px)
         if centres:
             print(centres)
+        if result.mosaic:
+            print('the frames are a raw colour mosaic (Bayer, not demosaiced): tracked smoothed '
+                  '[1 2 1] / 4 in x and y')
     return 0
 
 

@@ -168,3 +168,24 @@ def test_track_says_how_well_a_textured_marks_centre_is_known(tmp_path, capsys):
         error = table[f'{name}_position'] - scene.truth[name] * 1e-6
         assert abs(float(np.nanmean(error))) < 3.0 * centre + 3.0 * float(
             np.nanstd(error)) / np.sqrt(np.count_nonzero(np.isfinite(error)))
+
+
+def test_track_says_when_the_video_is_a_raw_colour_mosaic(tmp_path, capsys):
+    """Raw Bayer frames saved as a grey video (FFV1) are smoothed, and the command says so."""
+    from test_tracking_mosaic import mosaic_scene
+    from tracking_scenes import SceneSpec, plates
+
+    scene, frames = mosaic_scene(SceneSpec(plates=plates(amplitude=120.0)), 70, seed=5)
+    video = write_video(tmp_path / 'raw.mkv', frames)
+    rois = {name: ','.join(map(str, roi)) for name, roi in scene.rois.items()}
+    output = tmp_path / 'out.csv'
+    assert main(['track', str(video), '--slider-roi', rois['slider'], '--stator-roi',
+                 rois['stator'], '--meters-per-pixel', '1e-6', '--fps', '30', '--exposure',
+                 repr(scene.spec.exposure), '--output', str(output)]) == 0
+    said = capsys.readouterr().out.splitlines()
+    assert sum('raw colour mosaic' in line for line in said) == 1
+    table = np.genfromtxt(output, delimiter=',', names=True)
+    for name in ('slider', 'stator'):
+        error = table[f'{name}_position'] / 1e-6 - scene.truth[name]
+        assert np.all(np.isfinite(error)), name
+        assert float(np.sqrt(np.mean(error ** 2))) < 0.06, name

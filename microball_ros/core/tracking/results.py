@@ -74,7 +74,8 @@ class TrackResult:
     the position's standard error; invalid samples are NaN with a low quality; ``polarity``
     the learned polarity per mark ('dark' or 'bright'; absent if the mark was never found);
     ``centre_sigma_px`` the part of ``sigma_px`` that is one error in every frame: where the
-    mark's centre lies on a textured plate (px; 0 on a plain plate, NaN if not estimated).
+    mark's centre lies on a textured plate (px; 0 on a plain plate, NaN if not estimated);
+    ``mosaic`` whether the frames were a raw colour mosaic, smoothed (core.tracking.mosaic).
     """
 
     time: np.ndarray
@@ -89,6 +90,7 @@ class TrackResult:
     names: tuple[str, ...] = field(default=())
     polarity: dict[str, str] = field(default_factory=dict)
     centre_sigma_px: dict[str, float] = field(default_factory=dict)
+    mosaic: bool = False
 
     def to_columns(self) -> dict[str, np.ndarray]:
         """Return the position-CSV columns (docs/design.md section 5) as an ordered dict.

@@ -27,6 +27,7 @@ from microball_ros.core.tracking.image import (
     to_gray,
 )
 from microball_ros.core.tracking.mark import MarkTracker
+from microball_ros.core.tracking.mosaic import is_mosaic, unmosaic
 from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
 
 
@@ -62,6 +63,7 @@ class Tracker:
         self.marks = {name: MarkTracker(roi, self.config, name, self.exposure * self.fps)
                       for name, roi in checked.items()}
         self.index = 0
+        self.mosaic = False  # the frames are a raw colour mosaic (core.tracking.mosaic)
 
     def frame_time(self, index: int) -> float:
         """Return the mid-exposure time (s) of frame ``index``."""
@@ -71,11 +73,15 @@ class Tracker:
         """Learn every mark from ``frames``, then restart at frame 0 with what was learned.
 
         Batch tracking primes on the first ``config.prime_frames`` frames and then tracks
-        them again, so the first frames get the learned mark too.
+        them again, so the first frames get the learned mark too. Frames that are a raw
+        colour mosaic are smoothed from now on (``mosaic``).
         """
-        frames = [to_gray(frame) for frame in frames]
+        grey = [to_gray(frame) for frame in frames]
+        self.mosaic = is_mosaic(grey)
+        if self.mosaic:
+            grey = [unmosaic(frame) for frame in grey]
         for mark in self.marks.values():
-            mark.prime(frames)
+            mark.prime(grey)
 
     def process(self, frame: npt.ArrayLike, time: float | None = None) -> TrackedFrame:
         """Track all marks in the next frame and return a TrackedFrame.
@@ -84,6 +90,8 @@ class Tracker:
         example the header stamp of a received image).
         """
         frame = to_gray(frame)
+        if self.mosaic:
+            frame = unmosaic(frame)
         result = TrackedFrame(
             index=self.index, time=self.frame_time(self.index) if time is None else float(time),
             marks={name: mark.measure(frame) for name, mark in self.marks.items()},
@@ -162,4 +170,5 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         meters_per_pixel=tracker.meters_per_pixel, fps=tracker.fps,
         exposure=tracker.exposure, names=names,
         polarity={n: m.polarity for n, m in tracker.marks.items() if m.polarity},
-        centre_sigma_px={n: m.centre_sigma_px for n, m in tracker.marks.items()})
+        centre_sigma_px={n: m.centre_sigma_px for n, m in tracker.marks.items()},
+        mosaic=tracker.mosaic)
