@@ -385,3 +385,17 @@ def test_agreeing_leaves_out_a_few_frames_where_two_tracks_part():
     assert not both[[10, 11, 12, 20]].any() and both.sum() == 56
     b[:25] += 1.0  # too many to be told from the rest: all kept
     assert agreeing([a, b]).sum() == 59
+
+
+def test_a_refused_frame_says_which_check_it_failed():
+    # A fit far poorer than priming's with the mark's gain as usual was 'mark area changed'
+    # (a stick-slip slider breaking away mid-exposure: its smear is no quadratic path).
+    from microball_ros.core.tracking import TrackerConfig
+
+    config = TrackerConfig()
+    quality, reason = config.quality(50.0, 1.0, 0.12, config.match_tolerance + 3.0)
+    assert quality < config.min_quality and reason == 'poor fit'
+    quality, reason = config.quality(50.0, 1.6, 0.12, 1.0)
+    assert quality < config.min_quality and reason == 'mark area changed'
+    quality, reason = config.quality(0.5, 1.0, 0.12, 1.0)
+    assert quality < config.min_quality and reason == 'low contrast'

@@ -93,13 +93,16 @@ class TrackerConfig:
         Quality = (1 - exp(-(snr / snr_scale)^2)) * exp(-(ratio - 1)^2 / (2 tolerance^2))
         * exp(-(max(misfit - match_tolerance, 0) / 0.5)^2 / 2): the signal-to-noise, the
         mark's area or gain against the recent frames' (``ratio``), and the fit's residual in
-        units of the plate's noise (``misfit``, none: 1). The reason: 'mark area changed' when
-        the area or the fit is the poorer part, else 'low contrast'.
+        units of the plate's noise (``misfit``, none: 1). The reason: the poorest part, 'mark
+        area changed', 'poor fit' (the residual: something over the mark, or a smear that is
+        no quadratic path, as a slider breaking away mid-exposure) or 'low contrast'.
         """
         q_snr = 1.0 - math.exp(-(snr / self.snr_scale) ** 2)
         q_ratio = math.exp(-0.5 * ((ratio - 1.0) / tolerance) ** 2)
         q_match = 1.0
         if misfit is not None:
             q_match = math.exp(-0.5 * (max(misfit - self.match_tolerance, 0.0) / 0.5) ** 2)
-        reason = 'mark area changed' if min(q_ratio, q_match) < q_snr else 'low contrast'
+        reason = 'low contrast'
+        if min(q_ratio, q_match) < q_snr:
+            reason = 'poor fit' if q_match < q_ratio else 'mark area changed'
         return q_snr * q_ratio * q_match, reason
