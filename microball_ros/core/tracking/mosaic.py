@@ -6,7 +6,7 @@ phases of the 2 x 2 grid differ by the channels' gains (0.8 / 1 / 0.7 is typical
 balance), a checkerboard fixed in the image that no lens makes (optics blur a scene's own
 detail at a 2 px period to a few per cent at most). On such frames a mark is measured through
 its colour's pattern: an independent set's disc on a textured plate was 0.27 px off. A Bayer
-image message is demosaiced by the node (io.image); a video file or a mono8 message holding a
+image message is demosaiced (io.video.image_to_gray); a video file or a mono8 message holding a
 raw mosaic is found here, from the priming frames' mean, and smoothed with the [1 2 1] / 4
 filter in x and in y: its response at the 2 px period is zero and, symmetric, it moves nothing.
 """
