@@ -19,9 +19,9 @@ from tracking_scenes import render as render_scene
 
 from microball_ros.core.tracking import Tracker, TrackerConfig, plate_model, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
-import microball_ros.core.tracking.plate as plate_module
 from microball_ros.core.tracking.plate import PlateMarkTracker
 from microball_ros.core.tracking.plate_model import PlateModel, kernel_derivatives
+import microball_ros.core.tracking.plate_priming as plate_priming
 from microball_ros.core.tracking.plate_solver import PlateSolver, motion_curvatures
 import microball_ros.core.tracking.priming as priming_module
 from microball_ros.core.tracking.priming import (
@@ -306,7 +306,7 @@ def test_plain_plate_keeps_the_learned_plate_only_when_it_tracks_steadier(monkey
     assert np.all(np.isfinite(plate))
     ours, theirs = (float(np.sqrt(np.mean((x - truth) ** 2))) for x in (plate, centroid))
     assert ours < 0.85 * theirs and ours < 0.02, (ours, theirs)
-    monkeypatch.setattr(plate_module, 'PLAIN_MARGIN', 0.0)
+    monkeypatch.setattr(plate_priming, 'PLAIN_MARGIN', 0.0)
     dropped = tracked(frames, PlateMarkTracker, monkeypatch)
     assert np.array_equal(dropped, centroid, equal_nan=True)
 
@@ -335,11 +335,11 @@ def test_without_a_plate_the_centroids_standard_errors_are_scaled_to_its_scatter
     # With the plate dropped (a margin no plate meets), every frame is the centroid's, its
     # standard error times the scale
     frames, _ = render(n_frames=40, texture=0.0, static=0.0)
-    monkeypatch.setattr(plate_module, 'PLAIN_MARGIN', 0.0)
+    monkeypatch.setattr(plate_priming, 'PLAIN_MARGIN', 0.0)
     results = {}
     for kind in (CentroidMarkTracker, PlateMarkTracker):
         monkeypatch.setattr(tracker_module, 'MarkTracker', kind)
-        monkeypatch.setattr(plate_module, 'scatter_scale', lambda positions, found: 2.0)
+        monkeypatch.setattr(plate_priming, 'scatter_scale', lambda positions, found: 2.0)
         results[kind] = track(frames, {'mark': (0, 0, WIDTH, frames.shape[1])}, 1e-6,
                               fps=FPS, exposure=0.5 / FPS)
     centroid, plate = results[CentroidMarkTracker], results[PlateMarkTracker]

@@ -30,7 +30,8 @@ Per mark and frame, the centroid tracker (core.tracking.centroid) has one module
    the antisymmetric energy, band-limited interpolation); if the two disagree by more than 3
    sigma the blur is asymmetric and the centroid is kept.
 
-The default method 'auto' (core.tracking.plate) measures every frame so, unless priming finds
+The default method 'auto' (core.tracking.plate; its state and priming in
+core.tracking.plate_priming) measures every frame so, unless priming finds
 better (core.tracking.priming has what it measures): on a plate whose texture moves with the
 mark, and on a plain plate when its track is steadier than the centroid's and agrees with it as
 their standard errors allow, it learns the plate itself (mark and texture,

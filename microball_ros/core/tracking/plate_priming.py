@@ -1,0 +1,350 @@
+"""What PlateMarkTracker knows, and how it learns it from the priming frames.
+
+The base of core.tracking.plate.PlateMarkTracker, which measures each frame with what is
+learned here; the method as a whole is in that module's docstring. Here: the tracker's state;
+``prime``, which chooses per ROI between the centroid, a still or slowly moving mark and a
+learned plate (plain or textured, a long smear's); learning the plate twice
+(core.tracking.plate_learn) and the offsets and standard-error scale it is calibrated with.
+Priming tracks its own frames with ``measure`` (the subclass's) to judge and calibrate a plate.
+"""
+
+import math
+
+import numpy as np
+
+from microball_ros.core.tracking.area_centre import area_offset
+from microball_ros.core.tracking.background import StaticBackground
+from microball_ros.core.tracking.centroid import CentroidMarkTracker
+from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.gains import MarkGains
+from microball_ros.core.tracking.image import Roi, check_roi, roi_region
+from microball_ros.core.tracking.plate_learn import LearnedPlate, learn_plate
+from microball_ros.core.tracking.plate_model import PlateModel
+from microball_ros.core.tracking.plate_rows import edge_offset
+from microball_ros.core.tracking.predict import MotionPredictor
+from microball_ros.core.tracking.priming import (
+    TEXTURE_SCORE,
+    plain_verdict,
+    row_flat_field,
+    scatter_scale,
+    texture_score,
+)
+from microball_ros.core.tracking.profile import glint_columns
+from microball_ros.core.tracking.results import MarkMeasurement, with_centre
+from microball_ros.core.tracking.rows_guard import RowsGuard
+from microball_ros.core.tracking.small import SmallMotion, moves_little
+from microball_ros.core.tracking.smear import (
+    PeriodicMotion,
+    fit_motion,
+    least_smeared,
+    smear_start,
+    smear_verdict,
+)
+from microball_ros.core.tracking.still import StillMark, is_still
+
+# A plain plate's plate is kept if it reports every frame the centroid does over priming and
+# is priming.steadier than it by this margin.
+PLAIN_MARGIN = 0.95
+
+
+class PlatePriming:
+    """The state of a PlateMarkTracker and its learning (see the module); measures nothing."""
+
+    def __init__(self, roi: Roi, config: TrackerConfig | None = None, name: str = 'mark',
+                 exposure_fraction: float = 0.5):
+        """Create a tracker for the mark in ``roi`` (x, y, w, h, px)."""
+        self.roi = check_roi(roi, name=name)
+        self.config = TrackerConfig() if config is None else config
+        self.name = name
+        self.exposure_fraction = float(exposure_fraction)
+        self._fallback = CentroidMarkTracker(self.roi, self.config, name, exposure_fraction)
+        self.plate: PlateModel | None = None
+        self.texture = 0.0
+        self.weights: np.ndarray | None = None
+        self.static: np.ndarray | None = None
+        self.flat: np.ndarray | None = None
+        self._background: StaticBackground | None = None
+        self._half = self._outer = self._whole = 8.0  # px: its half-width, its reach in D
+        self._full: PlateModel | None = None
+        self._shift, self._rms = 0.0, 1.0  # D's origin in the whole plate; priming's residual
+        self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
+        self._predictor = MotionPredictor()
+        self._gains = MarkGains(int(self.config.area_history))  # and the jump guard
+        self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
+        self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
+        self._refused = False  # a long smear whose plate could not be learned: all NaN
+        self._clipped: np.ndarray | None = None  # this frame's glint columns
+        self._saturates = False  # the plate's own pixels saturated while priming
+        self._offset, self._asymmetry = 0.0, math.nan  # px added to positions; plate_rows
+        self._offset_sigma = 0.0  # px: the offset's standard error (NaN: not measured)
+        # A still mark, or one moving less than its width, on a textured plate
+        self._still: StillMark | SmallMotion | None = None
+        self._moved = False  # ... that moved since ``reset``
+        self._still_at: float | None = None  # a still mark's centroid on a plain plate (ROI px)
+        self._gathered: list | None = None  # frames since it moved, to learn it again from
+        self.revised: list[MarkMeasurement] = []  # ``_gather``'s frames measured again
+        self._sigma_scale = 1.0  # the standard errors times this (``scatter_scale``)
+        # An asymmetric mark on a plain plate: px to its contrast centroid, standard error
+        self._area: tuple[float, float] = (0.0, 0.0)
+        self._guard = RowsGuard(int(self.config.pad_px))  # plain plate: the mark's rows
+        self.jitter: tuple[float, float] | None = None  # plain plate: centroid's, plate's
+
+    @property
+    def polarity(self) -> str | None:
+        """Return the mark's polarity ('dark' or 'bright'), None until it is known."""
+        return self._fallback.polarity
+
+    @polarity.setter
+    def polarity(self, value: str | None) -> None:
+        self._fallback.polarity = value
+
+    @property
+    def textured(self) -> bool:
+        """Return True once priming found a textured plate and learned it."""
+        return self.plate is not None and self.texture >= TEXTURE_SCORE
+
+    @property
+    def learned(self) -> dict:
+        """Return what was learned: the centroid tracker's, and the plate near the mark if any."""
+        learned = dict(self._fallback.learned)
+        if self.plate is not None:
+            learned.update(polarity=self.polarity, half_width=self._half, texture=self.texture,
+                           template=self.plate.values.copy(), center=self.plate.center,
+                           offset=self._offset, sigma_scale=self._sigma_scale,
+                           edge_asymmetry=self._asymmetry, offset_sigma=self._offset_sigma)
+        if self._area[0] != 0.0:  # an asymmetric mark: to its contrast centroid (px, sigma)
+            learned.update(area_offset=self._area[0], area_offset_sigma=self._area[1])
+        return learned
+
+    @property
+    def centre_sigma_px(self) -> float:
+        """Return the standard error of where the mark's centre is put (px; NaN: unknown).
+
+        One error, the same in every frame (a texture under the mark moves with it), in each
+        position's ``sigma_px`` too; velocities and accelerations are free of it. 0 for the
+        centroid on a plain plate (exact on average); NaN for the centroid on a textured
+        plate whose plate could not be learned (its texture pulls the centroid by an amount
+        not measured).
+        """
+        if self._still is not None and not self._moved:
+            return self._still.centre_sigma
+        if self.plate is not None and self.weights is not None:
+            return with_centre(self._offset_sigma, self._area[1])
+        return math.nan if self.texture >= TEXTURE_SCORE else self._area[1]
+
+    def reset(self) -> None:
+        """Forget the track (what was learned is kept)."""
+        self._predictor.reset()
+        self._gains.reset()
+        self._moved = False
+        self._gathered = None
+        polarity = self._fallback.polarity
+        self._fallback.reset()
+        self._fallback.polarity = polarity
+
+    def _region(self, frame):
+        """Return the ROI of ``frame``, without the static background if one was learned."""
+        region = roi_region(frame, self.roi, self.name)
+        return region if self._background is None else self._background.apply(region)
+
+    # -- learning --------------------------------------------------------------------------
+    def prime(self, frames) -> None:
+        """Learn the polarity, whether the plate is textured, and if so the plate; restart."""
+        frames = list(frames)
+        self._forget()
+        self.texture, self.jitter, self._area = 0.0, None, (0.0, 0.0)
+        self._fallback.prime(frames)
+        if self.polarity is None or len(frames) < 12:
+            return
+        # A pattern fixed in the image (the centroid tracker's) first: the plate's own next.
+        self._background = (self._fallback.background
+                            if 'static_background' in self._fallback.learned else None)
+        regions = [self._region(frame) for frame in frames]
+        x = self.roi[0]
+        sample, marks = least_smeared(self._fallback.measure, frames, regions, x,
+                                      self.polarity)
+        self.reset()
+        if sample is None:
+            return
+        self.texture = texture_score(sample, marks)
+        # A still mark (a stuck slider) learns no plate: the centroid's, or core.tracking.still's
+        centroid = self._track_priming(frames, self._fallback.measure)
+        still = is_still(centroid[1], x)
+        # Without the pattern fixed in the image (a dot of dust deeper than the mark in their
+        # mean was taken for a still mark); a mark still over the priming frames is in that
+        # pattern, which the centroid then does not keep
+        self._still = StillMark.learn(regions, self.polarity, int(self.config.pad_px), still)
+        # A mark moving less than its width is in the median the plate's learning starts from
+        small = self._still is None and not still and moves_little(centroid[1], x)
+        if small:
+            self._still = SmallMotion.learn(regions, self.polarity, int(self.config.pad_px))
+        self._still_at = float(np.nanmedian(centroid[0])) if (
+            still and self._still is None) else None
+        if self._still is None and not still and not small:
+            if self.texture < TEXTURE_SCORE:
+                self._prime_plain(regions, frames, centroid)  # calibrates a plate it keeps
+            else:
+                self._prime_textured(regions, frames, self.polarity)
+        if self.plate is None and self._still is None and not self._refused:
+            # The centroid measures every frame: its standard errors scaled as a plate's (a
+            # pattern fixed in the image that the background leaves scatters it too)
+            self._sigma_scale = scatter_scale(centroid[0], centroid[1])
+        self._gains.stop_log()
+        # A plate whose own pixels saturate (a bright speckle) has no glints to tell apart
+        self._saturates = self.weights is not None and any(
+            glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
+                          self.config.saturation_level) is not None for frame in frames)
+        if self.texture < TEXTURE_SCORE and self._still is None and not self._refused:
+            # core.tracking.area_centre (a still mark's own module puts it: on a texture)
+            self._area = area_offset(regions, centroid[0], np.array(
+                [m.extent_px for m in centroid[1]]), self.polarity, int(self.config.pad_px))
+        self.reset()
+
+    def _prime_textured(self, regions, frames, polarity: str) -> None:
+        """On a textured plate, learn the plate (a long smear's, or relearned) and calibrate."""
+        start = smear_start(regions, polarity, self.exposure_fraction)
+        self._motion = None if start is None else start[4]  # a long smear (smear.py)
+        self._offset_sigma = math.nan  # until the edges measure it (a long smear's: never)
+        self._learn(regions, start)
+        if self._motion is not None:
+            self._check_smear(frames)
+        elif self.plate is not None:
+            self._relearn(regions, frames)
+            tracked = self._track_priming(frames, self.measure)
+            self._offset, self._asymmetry, self._offset_sigma = edge_offset(
+                regions if self.flat is None else [r / self.flat for r in regions],
+                self.weights, tracked[0], tracked[2], self._outer,
+                1.0 if polarity == 'dark' else -1.0)
+            self._calibrate(tracked)
+
+    def _calibrate(self, tracked) -> None:
+        """Scale the fit's standard errors to the scatter of the track over the priming frames.
+
+        ``tracked``: the priming frames' ``_track_priming`` with this plate; the scale is
+        ``scatter_scale``'s.
+        """
+        positions, found, _ = tracked
+        self._gains.learn_spread()  # from the plate's last pass over the priming frames
+        if self.texture >= TEXTURE_SCORE and self._motion is None:  # its kernels, from now
+            self._periodic = fit_motion(positions, self.exposure_fraction)
+        motion = self._motion or self._periodic
+        if motion is not None:  # the first frames' search gated too (core.tracking.predict)
+            self._predictor.use_frequency(motion.omega, motion.spread)
+        self._sigma_scale = scatter_scale(positions, found)
+
+    def _check_smear(self, frames) -> None:
+        """Keep a long smear's plate if ``smear_verdict`` trusts it; else refuse every frame."""
+        tracked = self._track_priming(frames, self.measure) if self.plate is not None else None
+        centroid = self._track_priming(frames, self._fallback.measure)[0]
+        if tracked is None or self._motion is None or not smear_verdict(
+                tracked[0], centroid, self._motion):
+            self._forget()
+            self._refused = True
+            return
+        self._calibrate(tracked)
+
+    def _track_priming(self, frames, measure):
+        """Return the positions (ROI columns, NaN: none), measurements and kernels (NaN: none)."""
+        self.reset()
+        x = self.roi[0]
+        self._gains.start_log()
+        found, kernels = [], []
+        for frame in frames:
+            found.append(measure(frame))
+            known = found[-1].valid and self._kernel is not None and measure == self.measure
+            kernels.append(self._kernel if known else (math.nan, math.nan))
+        self.reset()
+        return (np.array([m.position_px - x if m.valid else math.nan for m in found]), found,
+                np.array(kernels, dtype=float))
+
+    def _prime_plain(self, regions, frames, tracked) -> None:
+        """On a plain plate, learn the plate and keep it if it tracks better than the centroid.
+
+        ``tracked``: the centroid's ``_track_priming``. The plate tracks the priming frames
+        too, and is kept and offset as ``priming.plain_verdict`` says (``PLAIN_MARGIN``). The
+        mark's rows and row weights are learned from the plate's track (``mark_rows``).
+        """
+        centroid, reference, _ = tracked
+        self._learn(regions, found=centroid)
+        if self.plate is not None:
+            self._relearn(regions, frames)
+        if self.plate is None:
+            return self._forget()
+        self._guard.start_log()
+        tracked = self._track_priming(frames, self.measure)
+        self._guard.learn(self.roi[3])
+        keep, self.jitter, offset = plain_verdict(centroid, reference, tracked[0], tracked[1],
+                                                  PLAIN_MARGIN)
+        if not keep:
+            self._forget()
+            return
+        self._offset, self._offset_sigma = offset
+        self._calibrate(tracked)
+
+    def _forget(self) -> None:
+        """Drop a learned plate: every frame is measured by the centroid tracker again."""
+        self.plate = self._full = self._motion = self._periodic = None
+        self.weights = self.static = self.flat = None
+        self._half = self._outer = self._whole = 8.0
+        self._shift, self._rms, self._sigma_scale = 0.0, 1.0, 1.0
+        self._offset, self._asymmetry, self._still = 0.0, math.nan, None
+        self._offset_sigma = 0.0
+        self._still_at = None
+        self._gains.forget_spread()
+        self._guard.forget()
+        self._predictor.use_frequency(math.nan, 0.0)
+        self._refused = False
+        self.reset()
+
+    def _relearn(self, regions, frames) -> None:
+        """Learn the plate again from the positions and kernels the learned plate measures.
+
+        The first positions (dip centroids) can be pixels off on a texture; the rounds of the
+        solver then stop short of the plate. Measured with the first plate (search and full
+        fit), the positions start within a fraction of a pixel, so the second plate is sharp.
+        Kept only if it fits the frames better (median residual).
+        """
+        positions, _, kernels = self._track_priming(frames, self.measure)
+        positions[np.isnan(kernels[:, 0])] = np.nan
+        if np.count_nonzero(np.isfinite(positions)) < 8 or self.polarity is None:
+            return
+        spans = np.array([self._span(kernel[0], kernel) for kernel in kernels])  # NaN: none
+        flat = row_flat_field(regions, self.weights, positions, spans)
+        learned = learn_plate(regions if flat is None else [r / flat for r in regions],
+                              self.polarity, self.config, self.exposure_fraction,
+                              self._motion is not None, (positions, kernels))
+        if learned is not None and learned.rms <= self._rms:
+            learned.flat = flat
+            self._use(learned)
+
+    def _learn(self, regions, start=None, found=None) -> None:
+        """Learn the plate (core.tracking.plate_learn); leave ``plate`` None on failure.
+
+        ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
+        instead of the dip centroids and kernels from neighbouring frames; ``found``: the
+        centroid's positions, frames whose dip centroid is far off them left out.
+        """
+        if self.polarity is None:
+            return
+        learned = learn_plate(regions, self.polarity, self.config, self.exposure_fraction,
+                              self._motion is not None, start, found)
+        if learned is None:
+            self.plate = None
+        else:
+            self._use(learned)
+
+    def _use(self, learned: LearnedPlate) -> None:
+        """Measure with the plate ``learned`` from now on."""
+        self.plate, self._full, self._shift = learned.plate, learned.full, learned.shift
+        self._half, self._outer, self._whole = learned.half, learned.outer, learned.whole
+        self.weights, self.static, self.flat = learned.weights, learned.static, learned.flat
+        self._rms = learned.rms
+
+    def _span(self, blur, kernel):
+        """Return the width (px) the smeared mark can cover: the light is fitted outside it."""
+        curve = abs(kernel[1]) if kernel is not None else 0.0
+        return 2.0 * (self._outer + 0.5 * abs(blur) + 0.25 * curve) + 8.0
+
+    def measure(self, frame: np.ndarray) -> MarkMeasurement:
+        """Measure the mark in one frame (PlateMarkTracker.measure)."""
+        raise NotImplementedError
