@@ -10,15 +10,17 @@ template cut from a still frame does not match a smeared mark, and a symmetric m
 centre of symmetry of the smeared mark, which differs from the exposure average by up to a few
 tenths of a pixel when the speed changes during the exposure (seen with the paper's motion).
 
-Per mark and frame, the centroid tracker (core.tracking.centroid) has one module per stage
+Per mark and frame, the centroid tracker (core.tracking.centroid; its state and priming in
+core.tracking.centroid_priming) has one module per stage
 (all 1-D after one pass over the ROI):
 
 0. ``background``: a pattern fixed in the image (a window, dust, scratches), learned on the
    priming frames outside the mark's footprint, is divided out (or subtracted, if it is light
    added), only when it stands out from the noise; plain plates are left as they are;
 1. ``profile`` (the mark model): the ROI's rows averaged with weights proportional to the
-   mark's depth in each row (after its first 20 frames, the mark's own rows and weights,
-   and a frame whose rows depart from them is 'mark partly hidden'); the relative deficit
+   mark's depth in each row (the mark's own rows and weights, learned from the first 20
+   priming frames it is found in, or while tracking without priming; a frame whose rows
+   depart from them is 'mark partly hidden'); the relative deficit
    ``d = 1 - profile / baseline``, the baseline a polynomial fitted to the ROI outside the
    mark, which removes uneven illumination and flicker;
 2. ``search``: the strongest dip of the smoothed deficit, its extent where it exceeds a

@@ -1,7 +1,8 @@
 """One mark in one ROI by its deficit profile (the default method): stages, checks, quality.
 
-Owns CentroidMarkTracker. Per frame it removes the static background learned on the priming
-frames (core.tracking.background, if any), builds the profile and baseline
+Owns CentroidMarkTracker (its state and priming: core.tracking.centroid_priming). Per frame
+it removes the static background learned on the priming frames (core.tracking.background, if
+any), builds the profile and baseline
 (core.tracking.profile; the plate's columns that something else darkens, such as a particle
 passing, left out of the baseline: ``disturbed``), locates the dip (core.tracking.search: the
 strongest one within the mark's reach, ``Reach``, and when it fails a check the next one
@@ -13,7 +14,10 @@ the previous position (to tell a still mark from a moving one), where it was las
 how far it moved per frame (its reach), the recent integrated deficits (to recognise a partly
 hidden mark) and, after the first ``ROW_FRAMES`` frames the mark was found in, its rows and
 row weights (the plates move along x only, so they do not change; a frame whose rows depart
-from them shows a mark partly hidden or something dark beside it).
+from them shows a mark partly hidden or something dark beside it). Rows learned over the
+priming frames are kept from the first frame on (``reset`` keeps them): until they are known,
+every row of the ROI counts, and a glint or a dark patch above or below the mark can join its
+dip.
 
 A smear longer than ``LONG_SMEAR`` of the ROI (15 fps at a whole-frame exposure) leaves too
 little plate in its own frame for a baseline: it is measured against the plain plate learned
@@ -29,11 +33,13 @@ import math
 
 import numpy as np
 
-from microball_ros.core.tracking.background import StaticBackground, StaticPlate
-from microball_ros.core.tracking.config import TrackerConfig
-from microball_ros.core.tracking.image import Roi, check_roi, roi_region
+from microball_ros.core.tracking.centroid_priming import (
+    LONG_SMEAR,
+    ROW_FRAMES,
+    CentroidPriming,
+)
+from microball_ros.core.tracking.image import roi_region
 from microball_ros.core.tracking.profile import (
-    Baseline,
     column_profile,
     default_saturation,
     deficit_noise,
@@ -45,22 +51,16 @@ from microball_ros.core.tracking.profile import (
     row_weights,
     smooth,
 )
-from microball_ros.core.tracking.reach import Reach
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.rows_guard import mark_rows
 from microball_ros.core.tracking.search import Dip, locate, locate_within
 from microball_ros.core.tracking.subpixel import deficit_centroid, refine_position
 
-ROW_FRAMES = 20  # frames the mark is found in before its rows are fixed (rows_guard)
-# A smear whose extent (against the learned plate) exceeds LONG_SMEAR of the ROI's width is
-# measured against the plate; its window runs to SMEAR_THRESHOLD of the peak (or the noise),
-# and a deficit outside it over CUT_FRACTION of the area inside rejects the frame.
-LONG_SMEAR = 0.25
+# A long smear's window runs to SMEAR_THRESHOLD of the peak (or the noise), and a deficit
+# outside it over CUT_FRACTION of the area inside rejects the frame (centroid_priming.LONG_SMEAR).
 SMEAR_THRESHOLD = 0.01
 SHORT_FIRST = 0.6
 CUT_FRACTION = 0.05
-LOST_FRACTION = 0.2  # priming frames lost with their own baseline: smears may be long
-SMEAR_GROWTH = 2.0  # a long smear's extent (90th percentile) over its shortest (10th)
 
 
 def cut_smear(deficit: np.ndarray, lo: int, hi: int, pad: int, noise: float) -> bool:
@@ -76,210 +76,9 @@ def cut_smear(deficit: np.ndarray, lo: int, hi: int, pad: int, noise: float) -> 
         deficit.size)
 
 
-class CentroidMarkTracker:
-    """Track one mark inside one ROI, frame by frame.
 
-    State (all from earlier frames, in order): the previous position, to tell a still mark from
-    a moving one, and the recent integrated deficits, to recognise a partly hidden mark.
-    """
-
-    def __init__(self, roi: Roi, config: TrackerConfig | None = None, name: str = 'mark',
-                 exposure_fraction: float = 0.5):
-        """Create a tracker for the mark in ``roi`` (x, y, w, h, px).
-
-        With polarity 'auto' the first frame the mark is found in (as dark or as bright,
-        whichever stands out more) fixes the polarity. ``exposure_fraction`` is unused here.
-        """
-        self.roi = check_roi(roi, name=name)
-        self.config = TrackerConfig() if config is None else config
-        self.name = name
-        self._baseline = Baseline(self.roi[2], self.config.baseline_degree)
-        self._areas: deque[float] = deque(maxlen=int(self.config.area_history))
-        self._previous: float | None = None
-        self._background = StaticBackground()
-        self._plate = StaticPlate()
-        self._plate_rows: slice | None = None
-        self._plate_mean: np.ndarray | None = None
-        self._rows: slice | None = None
-        self._row_weights: np.ndarray | None = None
-        self._row_tolerance = math.inf
-        self._weights: np.ndarray | None = None
-        self._row_samples: list[np.ndarray] = []
-        self._reach = Reach()
-        self._gate: tuple[float, float] | None = None
-        self._taken: tuple[int, int] | None = None  # the dip measured (columns)
-        self._exclude: tuple[int, int] | None = None  # a dip found not to be the mark
-        self.polarity: str | None = None if self.config.polarity == 'auto' else (
-            self.config.polarity)
-
-    def reset(self) -> None:
-        """Forget the history (for a new, unrelated sequence)."""
-        self._areas.clear()
-        self._previous = None
-        self._reach = Reach()
-        self._rows = self._row_weights = None
-        self._row_tolerance = math.inf
-        self._row_samples.clear()
-        if self.config.polarity == 'auto':
-            self.polarity = None
-
-    def prime(self, frames) -> None:
-        """Learn the polarity, the mark's rows and the static background, then reset.
-
-        The background (core.tracking.background) is learned when ``static_background`` is
-        set: a first one from the plain temporal median locates the mark in every priming
-        frame, then the frames are averaged per pixel outside the mark's footprint. (The
-        mark's rows are learned while tracking, from the first frames, as in streaming.)
-        """
-        frames = list(frames)
-        self._background.clear()
-        self._plate.clear()
-        self._plate_rows = self._plate_mean = None
-        regions = None
-        if self.config.static_background:
-            regions = np.stack([roi_region(frame, self.roi, self.name) for frame in frames]
-                               ) if frames else None
-            if regions is not None:
-                self._background.inverse = StaticBackground.provisional(
-                    regions.astype(np.float32))
-                if self._background.inverse is not None and not self._keeps_mark(frames):
-                    self._background.clear()
-                if self._background.inverse is None:
-                    regions = None
-        self._find_polarity(frames)
-        if regions is not None:
-            polarity = self.polarity
-            first = self._background.inverse
-            self._background.learn(regions, self._footprints(frames), first)
-            self.reset()
-            self.polarity = polarity
-            if self._background.inverse is not None and not self._keeps_mark(frames):
-                self._background.clear()
-                if self.config.polarity == 'auto':
-                    self.polarity = None  # found again, on the frames as they are
-                self._find_polarity(frames)
-        if self.polarity is not None and len(frames) > 0:
-            long, lost = self._smears_long(frames)
-            if long or lost:
-                self._plate.learn(np.stack([self._background.apply(roi_region(
-                    frame, self.roi, self.name)) for frame in frames]), self.polarity,
-                    int(self.config.smoothing_px), int(self.config.merge_gap_px))
-            if lost and not long and np.count_nonzero(np.isnan(self._extents(frames))) >= lost:
-                # Frames lost for another reason than long smears (a particle passing): the
-                # plate does not find them either, and would measure the others worse.
-                self._plate.clear()
-
-    def _smears_long(self, frames) -> tuple[bool, int]:
-        """Return whether the priming frames may hold smears too long for a baseline; reset.
-
-        Measured with each frame's own baseline: (long, lost). ``long``: the 90th percentile
-        of the mark's extent (smear and all) at least ``LONG_SMEAR`` of the ROI's width (the
-        extent measured against the plate) and ``SMEAR_GROWTH`` times its 10th percentile (a
-        wide mark that hardly moves in a narrow ROI is no smear: 26 px in a 99 px ROI lost 22
-        of 90 frames against the plate). ``lost``: the frames lost, if more than
-        ``LOST_FRACTION`` of them (else 0); the plate is then kept only if it loses fewer. Only
-        then is the plain plate learned and tried on every frame: a short mark under a drifting
-        illumination gradient would look long against it (times one gain; a pair of bars
-        smeared over 0.18 of a narrow ROI lost 100 of 120 frames so), and it costs time.
-        """
-        extents = self._extents(frames)
-        count = int(np.count_nonzero(np.isnan(extents)))
-        lost = count if count > LOST_FRACTION * len(frames) else 0
-        extents = extents[np.isfinite(extents)]
-        if not extents.size:
-            return False, lost
-        longest, shortest = (float(v) for v in np.percentile(extents, [90, 10]))
-        return longest >= LONG_SMEAR * self.roi[2] and longest >= SMEAR_GROWTH * shortest, lost
-
-    def _extents(self, frames) -> np.ndarray:
-        """Return the mark's extent in each of ``frames`` (px; NaN: lost); reset."""
-        polarity = self.polarity
-        found = [self.measure(frame) for frame in frames]
-        self.reset()
-        self.polarity = polarity
-        return np.array([m.extent_px if m.valid else math.nan for m in found], dtype=float)
-
-    def _find_polarity(self, frames) -> None:
-        """Learn the polarity (if not known) from the first frame the mark is found in; reset."""
-        for frame in frames:
-            if self.polarity is not None:
-                break
-            self.measure(frame)
-        polarity = self.polarity
-        self.reset()
-        self.polarity = polarity
-
-    def _contrast(self, frames) -> float:
-        """Return the mark's median contrast over ``frames`` (0 where not found); reset."""
-        polarity = self.polarity
-        found = [self.measure(frame) for frame in frames]
-        self.reset()
-        self.polarity = polarity
-        return float(np.median([m.contrast if m.valid and m.contrast > 0 else 0.0
-                                for m in found]))
-
-    def _keeps_mark(self, frames) -> bool:
-        """Return False if the background takes the mark away (a mark that hardly moves).
-
-        A mark that stays over the same pixels in most priming frames is in their median,
-        and so in a background learned from it: divided by it, the frames lose the mark (or
-        show it with the wrong polarity). True if the mark keeps at least half its contrast
-        over the priming frames against the frames as they are (polarity found afresh).
-        """
-        learned = (self._background.inverse, self._background.added,
-                   self._background.reference, self._background.gain)
-        sample = frames[::max(len(frames) // 20, 1)]
-        polarity = self.polarity
-        with_background = self._contrast(sample)
-        self._background.clear()
-        if self.config.polarity == 'auto':
-            self.polarity = None
-        without = self._contrast(sample)
-        (self._background.inverse, self._background.added, self._background.reference,
-         self._background.gain) = learned
-        self.polarity = polarity
-        return with_background >= 0.5 * without
-
-    def _footprints(self, frames) -> np.ndarray:
-        """Return the columns the mark covers in each frame (all of them where not found)."""
-        x, _, w, _ = self.roi
-        covered = np.ones((len(frames), w), dtype=bool)
-        guard = int(self.config.pad_px) + int(self.config.smoothing_px) + 2
-        for i, frame in enumerate(frames):
-            found = self.measure(frame)
-            if found.valid and math.isfinite(found.extent_px):
-                center = found.position_px - x
-                half = found.extent_px / 2.0 + guard
-                covered[i] = False
-                covered[i, max(int(center - half), 0):max(int(math.ceil(center + half)) + 1,
-                                                           0)] = True
-        return covered
-
-    @property
-    def background(self) -> StaticBackground:
-        """Return the static background (its ``inverse`` None when none was learned)."""
-        return self._background
-
-    @property
-    def centre_sigma_px(self) -> float:
-        """Return the standard error of the mark's centre common to every frame: 0 (px).
-
-        The deficit's centroid is the mark's exposure-averaged centre, exact on average on a
-        plain plate. (On a textured plate the texture pulls it: method 'auto' learns the
-        plate there, and says what its centre's error is.)
-        """
-        return 0.0
-
-    @property
-    def learned(self) -> dict:
-        """Return what was learned: the polarity, the static background, the mark's rows."""
-        learned: dict = {'polarity': self.polarity} if self.polarity else {}
-        if self._row_weights is not None and self._rows is not None:
-            learned['rows'] = (self._rows.start, self._rows.stop)
-        if self._background.inverse is not None:
-            learned['static_background'] = self._background.kind
-            learned['static_background_gain'] = self._background.gain
-        return learned
+class CentroidMarkTracker(CentroidPriming):
+    """Track one mark inside one ROI, frame by frame (its state and ``prime``: the base's)."""
 
     def _invalid(self, reason, contrast=float('nan')):
         self._previous = None

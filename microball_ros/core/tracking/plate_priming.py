@@ -154,6 +154,18 @@ class PlatePriming:
         self._forget()
         self.texture, self.jitter, self._area = 0.0, None, (0.0, 0.0)
         self._fallback.prime(frames)
+        # The centroid's rows learned while priming serve it when it measures the frames; the
+        # choices and the learning below see it as they always did (rows learned as it tracks)
+        self._fallback.keep_rows = False
+        self.reset()
+        try:
+            self._prime(frames)
+        finally:
+            self._fallback.keep_rows = True
+            self.reset()
+
+    def _prime(self, frames) -> None:
+        """``prime`` once the centroid is primed."""
         if self.polarity is None or len(frames) < 12:
             return
         # A pattern fixed in the image (the centroid tracker's) first: the plate's own next.
