@@ -68,6 +68,7 @@ class PlatePriming:
         self._full: PlateModel | None = None
         self._shift, self._rms = 0.0, 1.0  # D's origin in the whole plate; priming's residual
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
+        self.priming = False  # the priming frames are being tracked (``_track_priming``)
         self._predictor = MotionPredictor()
         self._gains = MarkGains(int(self.config.area_history))  # and the jump guard
         self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
@@ -261,10 +262,14 @@ class PlatePriming:
         x = self.roi[0]
         self._gains.start_log()
         found, kernels = [], []
-        for frame in frames:
-            found.append(measure(frame))
-            known = found[-1].valid and self._kernel is not None and measure == self.measure
-            kernels.append(self._kernel if known else (math.nan, math.nan))
+        self.priming = True
+        try:
+            for frame in frames:
+                found.append(measure(frame))
+                known = found[-1].valid and self._kernel is not None and measure == self.measure
+                kernels.append(self._kernel if known else (math.nan, math.nan))
+        finally:
+            self.priming = False
         self.reset()
         return (np.array([m.position_px - x if m.valid else math.nan for m in found]), found,
                 np.array(kernels, dtype=float))
