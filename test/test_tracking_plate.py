@@ -331,6 +331,8 @@ def test_without_a_plate_the_centroids_standard_errors_are_scaled_to_its_scatter
     assert scale(0.015) == pytest.approx(0.03 / 0.015, rel=0.1)
     assert scale(0.015) == pytest.approx(motion_jitter([positions])[0] / 0.015)
     assert scale(0.04) == 1.0  # never scaled down
+    # 3 times (a window pattern's scatter on the bench's static_bright stator: 3.28)
+    assert scale(0.01) == pytest.approx(0.03 / 0.01, rel=0.1)
     assert scale(0.005) == 1.0  # 6 times: the motion's fit failed, not the tracker
     # With the plate dropped (a margin no plate meets), every frame is the centroid's, its
     # standard error times the scale

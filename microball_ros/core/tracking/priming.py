@@ -26,7 +26,11 @@ TEXTURE_SCORE = 0.1
 MIN_FLAT_GAIN = 0.5
 HARMONICS = 4
 SHAPE_FRAMES = 5  # deep_rows: the least smeared frames it looks at
-MAX_SIGMA_SCALE = 2.5  # scatter_scale: standard errors scaled up to this much
+# scatter_scale: standard errors scaled up to this much. Measured ratios on the bench and
+# the two blind sets kept here: 0.3-1.9 mostly, 2.47 / 3.28 (the centroid behind a window
+# pattern), 2.81 (lossy MPEG-4); the motion fit's failures (stick-slip, vibration, a tool in
+# the ROI) 12 and more
+MAX_SIGMA_SCALE = 4.0
 MISFIT = 2.0  # steadier: a motion fit missing by more than this many standard errors
 # agreeing: frames where two tracks differ by DISAGREE robust spreads of their difference
 # (at most ODD of the frames: else they are not told from the rest) are left out
@@ -162,7 +166,9 @@ def scatter_scale(positions: np.ndarray, found: list) -> float:
     scatter about a smooth periodic motion (``motion_jitter``), against the RMS of the
     standard errors there, between 1 and ``MAX_SIGMA_SCALE`` (a larger ratio is the motion
     fit's failure, not the tracker's: 1). Measured on the centroid behind a window pattern
-    (the bench's ``static_bright``): 2.47 on the priming frames, 2.57 over the whole video.
+    (the bench's ``static_bright``): 2.47 on the priming frames, 2.57 over the whole video
+    (the slider; the stator 3.28, whose frames were 49 % within two standard errors at a
+    limit of 2.5).
     """
     sigmas = np.array([m.sigma_px for m in found if m.valid])
     jitter = motion_jitter([positions])[0]
