@@ -90,8 +90,10 @@ class CentroidPriming:
         kept by ``reset``.
         """
         frames = list(frames)
+        polarity = self.polarity  # a polarity found before is kept (priming again: still.py)
         self._primed_rows = None
-        self.reset()
+        self.reset()  # no rows of an earlier priming while this one measures
+        self.polarity = polarity
         self._background.clear()
         self._plate.clear()
         self._plate_rows = self._plate_mean = None
