@@ -12,8 +12,8 @@ side over the path's reach, with weights >= 0 (non-negative least squares, scipy
 and an offset. A kernel is a distribution of positions, so the mark's position averaged over
 the exposure is the histogram's mean (exact for any motion, as a centroid is), the mark's gain
 is the weights' sum, and the mean's standard error is the active weights' least-squares one
-(linearised). What uses it (core.tracking.plate) keeps it only when it fits as well as the
-plate fitted the priming frames and its mean agrees with the quadratic fit's position.
+(linearised). What uses it (core.tracking.plate) keeps it only when its residual and gain pass
+the checks a quadratic fit's must and its mean lies near the quadratic fit's position.
 """
 
 import math
@@ -49,13 +49,18 @@ def fit_free_kernel(plate: PlateModel, window: np.ndarray, valid: np.ndarray, de
     as ``fit``'s. The histogram covers the path and ``MARGIN`` px beyond either end, no more
     (noise puts weight wherever the histogram reaches, pulling the mean to its middle), but
     the quadratic path can fall short of a slip's far end: an end holding over ``END_SHARE`` of
-    the weight is moved out by ``MARGIN`` and half the path, at most ``EXTEND`` times. None
-    when under 12 columns or no positive weight.
+    the weight is moved out by ``MARGIN`` and half the path, at most ``EXTEND`` times (never
+    nearer the grid's ends than ``reach``: the plate's smears wrap around them). None when
+    under 12 columns or no positive weight.
     """
+    lowest, highest = float(plate.grid[0]) + reach, float(plate.grid[-1]) - reach
     first, last = delta + path[0] - MARGIN, delta + path[1] + MARGIN
     step = MARGIN + 0.5 * (path[1] - path[0])
     found = None
     for _ in range(EXTEND + 1):
+        first, last = max(first, lowest), min(last, highest)
+        if not first < last:
+            return None
         found = _fit_histogram(plate, window, valid, reach, first, last)
         if found is None:
             return None
