@@ -95,9 +95,11 @@ SMEAR_MOVE = 0.25  # a long smear's fit may move this much of the blur from the 
 REACQUIRE_MATCH = 1.4  # after a loss, a poorer fit may be false (a shadow leaving: 2.7 px off)
 RELIGHT = 8.0  # px: a match this far from the prediction has the light fitted again beside it
 # A free kernel's mean within this many standard errors of the quadratic fit's position, and
-# FREE_SLACK of its path's length (a quadratic path misplaces a breakaway: 0.4-0.5 px of 7-8)
+# FREE_SLACK of its path's length, at most FREE_SLACK_MOST px (a quadratic path misplaces a
+# breakaway: 0.4-0.5 px of 7-8; a long smear's would allow pixels)
 FREE_AGREE = 3.0
 FREE_SLACK = 0.1
+FREE_SLACK_MOST = 1.0
 
 
 class PlateMarkTracker(PlatePriming):
@@ -280,8 +282,9 @@ class PlateMarkTracker(PlatePriming):
                                                      and judged[1] == 'poor fit')):
             path = path_range(blur, curve)
             free = fit_free_kernel(plate, window, valid, delta, reach, path)
+            slack = min(FREE_SLACK * (path[1] - path[0]), FREE_SLACK_MOST)
             if free is not None and abs(free.delta - delta) <= FREE_AGREE * math.hypot(
-                    free.sigma, sigma) + FREE_SLACK * (path[1] - path[0]):
+                    free.sigma, sigma) + slack:
                 self._gains = gains
                 judged = self._judge(free.gain, free.rms, sigma_gain, peak)
                 position += free.delta - delta
