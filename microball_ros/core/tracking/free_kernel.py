@@ -56,21 +56,19 @@ def fit_free_kernel(plate: PlateModel, window: np.ndarray, valid: np.ndarray, de
     lowest, highest = float(plate.grid[0]) + reach, float(plate.grid[-1]) - reach
     first, last = delta + path[0] - MARGIN, delta + path[1] + MARGIN
     step = MARGIN + 0.5 * (path[1] - path[0])
-    found = None
     for _ in range(EXTEND + 1):
         first, last = max(first, lowest), min(last, highest)
-        if not first < last:
-            return None
-        found = _fit_histogram(plate, window, valid, reach, first, last)
+        found = _fit_histogram(plate, window, valid, reach, first, last) if first < last else None
         if found is None:
             return None
         weights, shifts, result = found
+        share = END_SHARE * result.gain
         ends = (weights[shifts < first + 2 * BIN].sum(), weights[shifts > last - 2 * BIN].sum())
-        if max(ends) <= END_SHARE * result.gain:
+        if max(ends) <= share:
             break
-        first -= step if ends[0] > END_SHARE * result.gain else 0.0
-        last += step if ends[1] > END_SHARE * result.gain else 0.0
-    return None if found is None else found[2]
+        first -= step if ends[0] > share else 0.0
+        last += step if ends[1] > share else 0.0
+    return result
 
 
 def _fit_histogram(plate, window, valid, reach, first, last):
