@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from microball_ros.core.tracking.plate_model import PlateModel, kernel_spectra
+from microball_ros.core.tracking.plate_model import (
+    TURNS_FROM,
+    PlateModel,
+    _sinc_parts,
+    kernel_derivatives,
+    kernel_spectra,
+)
 from microball_ros.core.tracking.template import kernel_spectrum
 
 # (blur, curve): at rest, a plain blur, a turnaround inside the exposure (a segment of width
@@ -37,6 +43,55 @@ def test_kernel_spectra_are_the_template_kernels_shifted():
     expected = np.array([kernel_spectrum(k, b, c) * np.exp(-1j * k * s)
                          for b, c, s in zip(blurs, curves, shifts, strict=True)])
     assert np.allclose(kernel_spectra(k, blurs, curves, shifts), expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize('size', [1080, 4096])
+def test_long_grids_spectra_and_derivatives_are_the_template_kernels(size):
+    """Past TURNS_FROM frequencies the phases are coarse times fine turns: still exact.
+
+    Includes a segment of width 0 (3, 18: a turnaround) and widths of 1e-9 px, where
+    ``sin(z) / z`` and its slope come from their series.
+    """
+    k = 2 * np.pi * np.fft.rfftfreq(size)
+    assert k.size >= TURNS_FROM
+    kernels = [(b, c) for b, c in KERNELS if b > 0] + [(1e-9, 0.0), (40.0, 1e-9)]
+    blurs, curves = np.array(kernels).T
+    shifts = np.linspace(-30.0, 30.0, len(kernels))
+    expected = np.array([kernel_spectrum(k, b, c) * np.exp(-1j * k * s)
+                         for b, c, s in zip(blurs, curves, shifts, strict=True)])
+    assert np.allclose(kernel_spectra(k, blurs, curves, shifts), expected, rtol=0, atol=1e-12)
+    h = 1e-5
+    for blur, curve in kernels:
+        spectrum, d_blur, d_curve = kernel_derivatives(k, blur, curve)
+        assert np.allclose(spectrum, kernel_spectrum(k, blur, curve), rtol=0, atol=1e-12)
+        numeric = (kernel_spectrum(k, blur + h, curve) - kernel_spectrum(k, blur - h, curve)) / (
+            2 * h)
+        assert np.allclose(d_blur, numeric, rtol=0, atol=1e-6)
+        numeric = (kernel_spectrum(k, blur, curve + h) - kernel_spectrum(k, blur, curve - h)) / (
+            2 * h)
+        assert np.allclose(d_curve, numeric, rtol=0, atol=1e-6)
+
+
+@pytest.mark.parametrize('size', [256, 1080])
+def test_sinc_and_its_slope_hold_from_tiny_to_large_arguments(size):
+    """sin(z) / z and d/dz, z = half k: 1e-14 absolute for z > 0.1, 1e-9 relative below.
+
+    Below 0.1 the reference is their series to z^5 (error under 1e-9 relative); the direct
+    ``cos(z) - sin(z) / z`` loses everything there to rounding.
+    """
+    k = 2 * np.pi * np.fft.rfftfreq(size)
+    half = np.array([1e-100, 1e-12, 1e-7, 1e-4, 0.05, 3.0, 40.0])
+    sinc, slope = _sinc_parts(half, k, np.where(k == 0, 1e-100, k))
+    z = half[:, None] * k[None, 1:]
+    big = z > 0.1
+    small = ~big
+    zs = z[small]
+    assert np.allclose(sinc[:, 1:][big], np.sin(z[big]) / z[big], rtol=0, atol=1e-14)
+    assert np.allclose(slope[:, 1:][big], (np.cos(z[big]) - np.sin(z[big]) / z[big]) / z[big],
+                       rtol=0, atol=1e-14)
+    assert np.allclose(sinc[:, 1:][small], 1 - zs**2 / 6 + zs**4 / 120, rtol=1e-9, atol=0)
+    assert np.allclose(slope[:, 1:][small], -zs / 3 + zs**3 / 30 - zs**5 / 840, rtol=1e-9, atol=0)
+    assert np.all(sinc[:, 0] == 1.0) and np.all(np.abs(slope[:, 0]) < 1e-90)
 
 
 @pytest.mark.parametrize(('blur', 'curve'), KERNELS)
