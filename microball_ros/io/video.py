@@ -24,6 +24,13 @@ from microball_ros.core.errors import InputError
 from microball_ros.core.tracking import TrackResult, to_gray, track
 
 IMAGE_EXTENSIONS = ('.png', '.tif', '.tiff', '.bmp', '.pgm', '.ppm', '.jpg', '.jpeg')
+# FourCCs of lossy codecs (JPEG, MPEG-1/2/4, H.263/264/265, VP8/9, AV1, WMV, ...), lower case
+LOSSY_CODECS = frozenset((
+    'mjpg', 'mjpa', 'jpeg', 'avc1', 'h264', 'x264', 'davc', 'hev1', 'hvc1', 'hevc', 'h265',
+    'x265', 'mp4v', 'fmp4', 'xvid', 'divx', 'dx50', 'mp42', 'mp43', 'div3', 'vp80', 'vp90',
+    'vp08', 'vp09', 'av01', 'theo', 'wmv1', 'wmv2', 'wmv3', 'wvc1', 'mpg1', 'mpg2', 'mpeg',
+    'h263', 'flv1', 'cvid'))
+LOSSY_IMAGES = ('.jpg', '.jpeg')
 LOSSLESS_CODEC = 'FFV1'
 LOSSY_CODEC = 'MJPG'
 
@@ -75,7 +82,9 @@ class FrameSource:
 
     ``fps`` is the container's frame rate for a video (None if unknown, and for arrays and
     folders), ``frame_size`` is (width, height), ``n_frames`` the count (a video's count is
-    the container's estimate). Iterating yields 2-D arrays (colour is converted to gray).
+    the container's estimate). ``codec``: a video's FourCC ('' otherwise); ``lossy``: True
+    for a lossy codec (``LOSSY_CODECS``) or JPEG images, whose block artefacts the trackers'
+    standard errors do not model. Iterating yields 2-D arrays (colour is converted to gray).
     Unreadable or missing input raises InputError with a one-line message.
     """
 
@@ -84,6 +93,8 @@ class FrameSource:
         self.source = source
         self.fps: float | None = None
         self.kind = ''
+        self.codec = ''
+        self.lossy = False
         self._paths: list[str] = []
         if isinstance(source, (str, os.PathLike)):
             path = os.fspath(source)
@@ -127,6 +138,7 @@ class FrameSource:
             raise InputError(f'{path}: no image files ({", ".join(IMAGE_EXTENSIONS)})')
         self.kind = 'folder'
         self._paths = [os.path.join(path, n) for n in names]
+        self.lossy = any(n.lower().endswith(LOSSY_IMAGES) for n in names)
         self._learn(self._read_image(self._paths[0]), len(self._paths))
 
     @staticmethod
@@ -145,9 +157,12 @@ class FrameSource:
                                  f'decodes, or empty)')
             fps = capture.get(cv2.CAP_PROP_FPS)
             count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
+            fourcc = int(capture.get(cv2.CAP_PROP_FOURCC))
         finally:
             capture.release()
         self.kind = 'video'
+        self.codec = ''.join(chr((fourcc >> 8 * i) & 0xFF) for i in range(4)).strip('\0 ')
+        self.lossy = self.codec.lower() in LOSSY_CODECS
         self._path = path
         self.fps = float(fps) if fps and math.isfinite(fps) and fps > 0 else None
         self._learn(to_gray(frame), count if count > 0 else None)
