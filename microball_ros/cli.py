@@ -51,8 +51,6 @@ _progress = Progress()
 
 # Work that would not fit in memory is refused before it starts (bytes of the arrays kept).
 MAX_SIMULATED_SAMPLES = 10_000_000   # simulate: about 1 GB of columns (92 h at 30 fps)
-MAX_RENDERED_BYTES = 4 * 1024 ** 3   # render keeps every frame in memory
-VIDEO_SUFFIXES = ('.mkv', '.avi')
 
 
 def cmd_simulate(args):
@@ -220,25 +218,10 @@ def _centre_errors(sigmas):
 
 def cmd_render(args):
     """Render the simulated rig to a video, and print the track command that reads it."""
-    from microball_ros.core import bench, rig
-    from microball_ros.io import video
+    from microball_ros.app.render import render_video
 
-    scenario = bench.get_scenario(args.scenario, **({'seed': args.seed}
-                                                    if args.seed is not None else {}))
-    if not args.output.lower().endswith(VIDEO_SUFFIXES):
-        raise CliError(f'{args.output}: a video file name must end in '
-                       f'{" or ".join(VIDEO_SUFFIXES)}')
-    config = rig.camera_for(scenario)
-    frames = args.duration * config.fps
-    size = frames * config.width * config.height
-    if size > MAX_RENDERED_BYTES:
-        raise CliError(f'--duration {args.duration:g} s is {frames:.0f} frames '
-                       f'({size / 1024 ** 3:.1f} GiB in memory); render at most '
-                       f'{MAX_RENDERED_BYTES / (config.fps * config.width * config.height):.0f} s')
-    _progress(f'rendering {args.duration:g} s of scenario {args.scenario!r} ...')
-    rendered, _ = rig.render_bench(scenario, args.duration)
-    codec = video.LOSSLESS_CODEC if args.lossless else video.LOSSY_CODEC
-    video.write_video(args.output, rendered.frames, fps=rendered.config.fps, codec=codec)
+    rendered, codec = render_video(args.scenario, args.output, args.duration, seed=args.seed,
+                                   lossless=args.lossless, progress=_progress)
     rois = {name: ','.join(str(v) for v in roi) for name, roi in rendered.rois.items()}
     config = rendered.config
     print(f'wrote {len(rendered.frames)} frames ({codec}) to {args.output}')
