@@ -37,6 +37,16 @@ def _positive_float(text):
     return value
 
 
+def _non_negative_float(text):
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not 0 <= value < float('inf'):
+        raise argparse.ArgumentTypeError(f'{text!r} must be a finite number >= 0')
+    return value
+
+
 def _fraction(text):
     try:
         value = float(text)
@@ -163,7 +173,8 @@ def cmd_track(args):
         raise CliError('--preview-frames must be at least 1')
     if args.output is None and args.preview is None:
         raise CliError('give --output FILE.csv (or --preview FILE.png)')
-    config = TrackerConfig(polarity=args.polarity, method=args.method)
+    config = TrackerConfig(polarity=args.polarity, method=args.method,
+                           black_level=args.black_level)
     rois = {'slider': args.slider_roi, 'stator': args.stator_roi}
     source = FrameSource(args.video)
     max_frames = args.preview_frames if args.preview and not args.output else None
@@ -520,6 +531,10 @@ def build_parser():
     track.add_argument('--polarity', choices=['auto', 'dark', 'bright'], default='auto',
                        help='marks darker or brighter than their plate (default: auto, '
                             'learned from the video)')
+    track.add_argument('--black-level', type=_non_negative_float, default=0.0, metavar='DN',
+                       help="the camera's dark offset, the value of a pixel that gets no "
+                            'light (default 0): a shadow passing over a mark is divided out '
+                            'above it')
     track.add_argument('--method', choices=['auto', 'template'], default='auto',
                        help="'auto' (default): the mark's contrast centroid on a plain "
                             'plate; on a textured plate (found on the first frames) the plate '

@@ -104,6 +104,8 @@ def _run(*argv):
     ({'--meters-per-pixel': '0'}, 'positive'),
     ({'--meters-per-pixel': '-2e-6'}, 'positive'),
     ({'--stator-roi': '1,2,3'}, 'four integers'),
+    ({'--black-level': '-3'}, '>= 0'),
+    ({'--black-level': 'dark'}, 'not a number'),
 ])
 def test_bad_track_input_gives_one_line_and_exit_2(paper_video, tmp_path, change, message):
     _, path, video = paper_video
@@ -112,6 +114,8 @@ def test_bad_track_input_gives_one_line_and_exit_2(paper_video, tmp_path, change
     for key, value in change.items():
         if key == 'video':
             args[1] = str(tmp_path / value)
+        elif key not in args:
+            args.append(f'{key}={value}')
         else:  # KEY=VALUE, so that argparse takes a negative number as the value
             at = args.index(key)
             args[at:at + 2] = [f'{key}={value}']

@@ -6,7 +6,8 @@ with a mark of any polarity and shape ('bar', 'cross', 'pair' of bars, 'blob', a
 moving along x;
 optional surface texture that moves with its plate, a static texture (fixed in the image:
 light added, ``static_texture`` in DN, or a transmission, ``static_transmission`` relative),
-illumination flicker, occlusions, 8- or 16-bit output. Everything is analytic: the textures
+illumination flicker, a soft shadow sweeping over the plates, a camera's dark offset,
+occlusions, 8- or 16-bit output. Everything is analytic: the textures
 are sums of plane waves, so motion blur, pixel integration and the optical PSF are exact
 factors per wave; the marks are boxes or Gaussians integrated over each pixel and averaged
 over the sub-exposure positions. Truth is the exposure-averaged mark column (px).
@@ -66,6 +67,12 @@ class SceneSpec:
     gain: float = 20.0
     read_noise: float = 1.0
     bits: int = 8
+    black: float = 0.0  # the camera's dark offset, DN (added to every pixel before noise)
+    # A soft shadow band sweeping along x: (first frame, last frame, x at first, x at last,
+    # width, penumbra, depth, tilt in degrees from the vertical), centred on the frame's
+    # middle row; the light is 1 - depth * smoothstep((width / 2 + penumbra - d) /
+    # (2 penumbra)), d the distance from the band's centre line.
+    shadow: tuple = ()
 
 
 def _waves(rng, n, amplitude, shortest=3.0, longest=40.0):
@@ -211,11 +218,13 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), pas
         if spec.drift:
             change = spec.drift * (2.0 * n / max(n_frames - 1, 1) - 1.0)
             lit = light * (1 + change * xn)[None, :]
+        if spec.shadow:
+            lit = lit * shadow_light(spec, n, cols, rows)
         mean = np.clip(scene * lit * flicker[n], 0, None)
         if keep_expected:
-            expected.append(mean)
+            expected.append(mean + spec.black)
         noise = np.sqrt(mean / spec.gain + spec.read_noise ** 2)
-        dn = mean + noise * rng.standard_normal(mean.shape)
+        dn = spec.black + mean + noise * rng.standard_normal(mean.shape)
         top_value = 65535 if spec.bits == 16 else 255
         dtype = np.uint16 if spec.bits == 16 else np.uint8
         frames.append(np.clip(np.rint(dn * scale), 0, top_value).astype(dtype))
@@ -228,6 +237,20 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), pas
         h = plate.height / 2 + 10
         rois[name] = (x0, int(row - h), x1 - x0, int(2 * h))
     return Scene(np.array(frames), truth, rois, spec, expected)
+
+
+def shadow_light(spec, n, cols, rows):
+    """Return the light ``spec.shadow`` lets through in frame ``n`` (rows x cols, 1 = none)."""
+    first, last, x_first, x_last, width, penumbra, depth, tilt = spec.shadow
+    at = x_first + (x_last - x_first) * np.clip((n - first) / max(last - first, 1), 0, 1)
+    if not first <= n <= last:
+        return np.ones((rows.size, cols.size))
+    angle = math.radians(tilt)
+    middle = (spec.height - 1) / 2.0
+    d = np.abs((cols[None, :] - at) * math.cos(angle) + (rows[:, None] - middle)
+               * math.sin(angle))
+    t = np.clip((width / 2 + penumbra - d) / (2 * penumbra), 0, 1)
+    return 1 - depth * t * t * (3 - 2 * t)
 
 
 def ell_centroid(spec: PlateSpec) -> float:

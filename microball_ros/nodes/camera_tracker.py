@@ -86,6 +86,9 @@ PARAMS = {
     'video_speed': Param(1.0, 'video playback speed factor', 0.01, 1000.0, read_only=True),
     'polarity': Param('auto', "marks darker or brighter than their plate: 'auto' (learned), "
                               "'dark' or 'bright'", read_only=True),
+    'black_level': Param(0.0, "the camera's dark offset, DN (a pixel that gets no light): a "
+                              'shadow passing over a mark is divided out above it', 0.0, 1.0e6,
+                         read_only=True),
     'publish_debug_image': Param(False, 'publish tracking/debug_image with the marks drawn'),
     'frame_id': Param('camera', 'frame_id for positions from video_path', read_only=True),
     'wait_for_subscribers': Param(0, 'subscribe to the images only once tracking/positions has '
@@ -126,7 +129,7 @@ def check_parameters(values):
         check_distinct_rois({'slider': check_roi(values['slider_roi'], name='slider'),
                              'stator': check_roi(values['stator_roi'], name='stator')})
         check_scale(values['meters_per_pixel'])
-        TrackerConfig(polarity=values['polarity'])
+        TrackerConfig(polarity=values['polarity'], black_level=values['black_level'])
     except ValueError as error:
         return str(error)
     return None
@@ -200,7 +203,8 @@ class CameraTracker(Node):
         self._rois = {'slider': tuple(values['slider_roi']),
                       'stator': tuple(values['stator_roi'])}
         self._config = TrackerConfig(polarity=values['polarity'],
-                                     prime_frames=values['prime_frames'])
+                                     prime_frames=values['prime_frames'],
+                                     black_level=values['black_level'])
         self._tracker = None
         self._frame_size = None
         self._frames = 0

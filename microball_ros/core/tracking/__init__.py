@@ -47,6 +47,11 @@ plate's search. On a textured plate the mark's centre is where its edges are mos
 mirror-symmetric, row by row (core.tracking.plate_rows); a mark still over the priming frames
 on a textured plate is registered against them (core.tracking.still).
 
+A soft shadow sweeping over an ROI (core.tracking.shade, for the default methods on plates
+plain beside the mark) is measured on the ROI's rows above and below the mark, which it darkens
+alike, shifted by its tilt: ``Tracker`` divides the ROI by that light (above the camera's
+``black_level``) before the mark's tracker sees the frame; frames without one are as they were.
+
 The polarity is 'auto' by default: the first frame the mark is found in fixes it (dark or
 bright, from the skewness of the profile, else whichever detection stands out more). The
 method 'template' (core.tracking.learned, opt-in) instead learns a template of any shape from

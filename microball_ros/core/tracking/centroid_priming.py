@@ -246,6 +246,14 @@ class CentroidPriming:
         return self._background
 
     @property
+    def mark_rows(self) -> tuple[int, int] | None:
+        """Return the ROI rows (first, stop) the mark occupies, learned while priming; or None."""
+        rows = None if self._primed_rows is None else self._primed_rows[0]
+        if rows is None or rows.start is None or rows.stop is None:
+            return None
+        return int(rows.start), int(rows.stop)
+
+    @property
     def centre_sigma_px(self) -> float:
         """Return the standard error of the mark's centre common to every frame: 0 (px).
 

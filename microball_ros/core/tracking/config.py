@@ -34,6 +34,8 @@ class TrackerConfig:
     the rate of the static-background running mean; ``match_tolerance``: the fit residual,
     in units of the plate's noise, above which a frame does not show the learned mark.
     ``merge_gap_px``: parts of a mark above the threshold this close are one mark (bars).
+    ``black_level``: the camera's dark offset (DN, the value of a pixel that gets no light;
+    0: none): a passing shadow's light (core.tracking.shade) scales the pixels above it.
     ``static_background``: the default methods learn a pattern fixed in the image (a window,
     dust, scratches) from the priming frames and divide it out, when it stands out from the
     noise (core.tracking.background).
@@ -52,6 +54,7 @@ class TrackerConfig:
     min_depth: float = 0.005
     min_baseline: float = 4.0
     saturation_level: float | None = None
+    black_level: float = 0.0
     max_saturated_fraction: float = 0.002
     area_tolerance: float = 0.12
     area_history: int = 9
@@ -73,6 +76,9 @@ class TrackerConfig:
         if self.polarity not in POLARITIES:
             raise InputError(f'tracker polarity must be one of {", ".join(POLARITIES)}, '
                              f'got {self.polarity!r}')
+        if not (math.isfinite(self.black_level) and self.black_level >= 0):
+            raise InputError(f'black level must be a finite number >= 0 DN, '
+                             f'got {self.black_level!r}')
         if not 0 <= int(self.baseline_degree) <= 5:
             raise InputError('tracker baseline_degree must be in 0..5')
         if (int(self.smoothing_px) < 1 or int(self.pad_px) < 0 or int(self.area_history) < 1

@@ -31,7 +31,7 @@ from microball_ros.core.tracking.priming import (
 )
 from microball_ros.core.tracking.profile import glint_columns
 from microball_ros.core.tracking.results import MarkMeasurement, with_centre
-from microball_ros.core.tracking.rows_guard import RowsGuard
+from microball_ros.core.tracking.rows_guard import ROW_FRACTION, ROW_MARGIN, RowsGuard
 from microball_ros.core.tracking.small import SmallMotion, moves_little
 from microball_ros.core.tracking.smear import (
     PeriodicMotion,
@@ -116,6 +116,22 @@ class PlatePriming:
         if self._area[0] != 0.0:  # an asymmetric mark: to its contrast centroid (px, sigma)
             learned.update(area_offset=self._area[0], area_offset_sigma=self._area[1])
         return learned
+
+    @property
+    def mark_rows(self) -> tuple[int, int] | None:
+        """Return the ROI rows (first, stop) the mark occupies; None if unknown.
+
+        Its learned plate's row weights over ``rows_guard.ROW_FRACTION`` of the largest,
+        widened by ``ROW_MARGIN`` (as the centroid's rows); the centroid's when no plate was
+        learned.
+        """
+        if self.weights is None:
+            return self._fallback.mark_rows
+        deep = np.flatnonzero(self.weights > ROW_FRACTION * float(self.weights.max()))
+        if deep.size == 0:
+            return None
+        return (max(int(deep[0]) - ROW_MARGIN, 0),
+                min(int(deep[-1]) + ROW_MARGIN + 1, self.weights.size))
 
     @property
     def centre_sigma_px(self) -> float:
