@@ -209,10 +209,24 @@ def cmd_track(args):
                 print(f'lossy video ({source.codec or "JPEG images"}): on MPEG-4 and MJPEG '
                       "videos a textured mark's centre was up to 5 times further off than "
                       'said (2 of 4 marks tested; README)')
+        if any(result.shaded.values()):
+            print(_shadow_line(result.shaded, args.black_level))
         if result.mosaic:
             print('the frames are a raw colour mosaic (Bayer, not demosaiced): tracked smoothed '
                   '[1 2 1] / 4 in x and y')
     return 0
+
+
+def _shadow_line(shaded, black_level):
+    """Return the line saying how many frames a passing shadow was divided out of."""
+    from microball_ros.core.tracking.tracker import SHADED_SIGMA
+
+    line = (f"a shadow was divided out of {shaded.get('slider', 0)} / "
+            f"{shaded.get('stator', 0)} frames (slider / stator; its light taken beside each "
+            f'mark, their standard errors times {SHADED_SIGMA:g})')
+    if black_level == 0:
+        line += ': if the camera has a dark offset, give it (--black-level DN)'
+    return line
 
 
 def _centre_errors(sigmas):

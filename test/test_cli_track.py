@@ -199,6 +199,36 @@ def test_track_warns_that_a_lossy_videos_centre_errors_may_be_low(tmp_path, caps
                       'tested; README)'] if warned else [])
 
 
+@pytest.mark.parametrize('black', [0.0, 10.0])
+def test_track_says_how_many_frames_a_shadow_was_divided_out_of(tmp_path, capsys, black):
+    """A shadow sweeping over both marks: the frames are counted, the black level hinted."""
+    from dataclasses import replace
+
+    from tracking_scenes import PlateSpec, SceneSpec
+    from tracking_scenes import render as render_scene
+
+    mark = PlateSpec(band=(30.0, 150.0), width=16.0, height=30.0, contrast=-120.0,
+                     level=150.0, amplitude=90.0, frequency=0.9, origin=240.0)
+    spec = SceneSpec(plates={'slider': mark, 'stator': replace(mark, band=(200.0, 320.0),
+                                                                phase=1.0)},
+                     width=480, height=350, fps=25.0, exposure=0.02, black=black,
+                     shadow=(60, 110, 60.0, 420.0, 40.0, 8.0, 0.45, 20.0))
+    scene = render_scene(spec, 120, seed=4)
+    video = write_video(tmp_path / 'video.mkv', list(scene.frames), codec='FFV1')
+    argv = ['track', str(video), '--slider-roi', '100,55,280,70', '--stator-roi',
+            '100,225,280,70', '--meters-per-pixel', '1e-6', '--fps', '25', '--exposure', '0.02',
+            '--output', str(tmp_path / 'out.csv')]
+    assert main(argv + (['--black-level', '10'] if black else [])) == 0
+    said = [line for line in capsys.readouterr().out.splitlines() if 'shadow' in line]
+    assert len(said) == 1, said
+    counts = said[0].split('divided out of ')[1].split(' frames')[0].split(' / ')
+    assert all(30 <= int(count) <= 50 for count in counts), said  # 41: the band over an ROI
+    assert said[0].endswith('(--black-level DN)') is (black == 0)
+    table = np.genfromtxt(tmp_path / 'out.csv', delimiter=',', names=True)
+    for name in ('slider', 'stator'):
+        assert np.count_nonzero(np.isnan(table[f'{name}_position'])) <= 2
+
+
 def test_a_folder_of_jpeg_images_is_lossy_and_of_png_is_not(tmp_path):
     frame = np.full((20, 30), 100, np.uint8)
     for kind in ('png', 'jpg'):

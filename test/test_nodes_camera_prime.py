@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image
-from tracking_scenes import SceneSpec, plates, render
+from tracking_scenes import PlateSpec, SceneSpec, plates, render
 
 from microball_ros.app.experiment import flatten_parameters
 from microball_ros.core.tracking import Tracker, TrackerConfig, track
@@ -124,6 +124,42 @@ def _assert_published_equals(positions, expected, times):
         np.testing.assert_array_equal(
             np.array([getattr(m, f'{name}_sigma') for m in positions])[valid], sigma[valid],
             err_msg=name)
+
+
+def test_a_shadow_is_divided_out_as_track_does_and_counted(ros_context):
+    """A shadow sweeping over both marks: the node publishes what track gives.
+
+    Value for value (the shaded frames' sigmas widened), and /diagnostics counts the shaded
+    frames.
+    """
+    from dataclasses import replace
+
+    mark = PlateSpec(band=(30.0, 150.0), width=16.0, height=30.0, contrast=-120.0,
+                     level=150.0, amplitude=90.0, frequency=0.9, origin=240.0)
+    spec = SceneSpec(plates={'slider': mark, 'stator': replace(mark, band=(200.0, 320.0),
+                                                                phase=1.0)},
+                     width=480, height=350, fps=30.0, exposure=0.02,
+                     shadow=(60, 100, 60.0, 420.0, 40.0, 8.0, 0.45, 20.0))
+    scene = replace(render(spec, 100, seed=9), rois={'slider': (100, 55, 280, 70),
+                                                     'stator': (100, 225, 280, 70)})
+    n = len(scene.frames)
+    sent, times = _stamps(n)
+    expected = track(scene.frames, scene.rois, SCALE, 30.0, times=times)
+    assert all(20 <= count <= 45 for count in expected.shaded.values()), expected.shaded
+    tracker = _node(ros_context, scene, stamp_offset=STAMP_OFFSET, prime_timeout=600.0)
+    harness = Harness(ros_context, tracker)
+    try:
+        camera = Camera(harness, tracker)
+        for k in range(n):
+            camera.send(scene.frames[k], sent[k])
+            if k >= 59:  # primed on the first 60, then each frame's position at once
+                camera.wait_for_positions(k + 1)
+        _assert_published_equals(camera.positions, expected, times)
+        # /diagnostics is periodic: one after the last frame has the final counts
+        counted = ', '.join(f'{name} {expected.shaded[name]}' for name in ('slider', 'stator'))
+        camera.wait_for_status(lambda s: _values(s).get('shaded_frames') == counted, counted)
+    finally:
+        harness.close()
 
 
 def test_textured_plate_positions_equal_track_value_for_value(ros_context, textured):

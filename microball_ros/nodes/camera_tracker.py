@@ -157,7 +157,9 @@ def debug_image(frame, rois, positions_px, labels=None):
 class TrackerDiagnostics(NodeDiagnostics):
     """NodeDiagnostics plus the priming state: 'priming: n/M frames', then how it ended.
 
-    Once primed, 'centre_sigma_px' too: each mark's centre_sigma_px ('slider 0.0500, ...').
+    Once primed, 'centre_sigma_px' too: each mark's centre_sigma_px ('slider 0.0500, ...'),
+    and once a passing shadow was divided out of a frame (core.tracking.shade),
+    'shaded_frames': how many frames per mark ('slider 41, stator 0').
 
     While the node learns, the status message says so; a priming cut short by a pause of the
     images is a warning for one period (the 'priming' value keeps saying it).
@@ -166,6 +168,7 @@ class TrackerDiagnostics(NodeDiagnostics):
     def __init__(self, node, **kwargs):
         self.priming = ''
         self.centres = ''  # once primed: each mark's centre_sigma_px
+        self.shaded = ''  # the frames per mark a passing shadow was divided out of, if any
         self._warning = ''
         super().__init__(node, **kwargs)
 
@@ -183,6 +186,8 @@ class TrackerDiagnostics(NodeDiagnostics):
                 status.message = f'learning the marks: {self.priming}'
         if self.centres:
             status.values.append(KeyValue(key='centre_sigma_px', value=self.centres))
+        if self.shaded:
+            status.values.append(KeyValue(key='shaded_frames', value=self.shaded))
         if self._warning:
             status.level = max(status.level, DiagnosticStatus.WARN)
             status.message = (self._warning if status.message == 'ok'
@@ -348,6 +353,9 @@ class CameraTracker(Node):
             when = f'{stamp:.6f} s' if stamp is not None else f'index {self._tracker.index}'
             self.diagnostics.error(f'frame at {when} not tracked: {error!r}')
             return
+        if any(self._tracker.shaded.values()):
+            self.diagnostics.shaded = ', '.join(f'{name} {count}'
+                                                for name, count in self._tracker.shaded.items())
         self._publish(result, frame, conversions.seconds_to_stamp(result.time), frame_id)
 
     def _publish(self, result, frame, stamp, frame_id):

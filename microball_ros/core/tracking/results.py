@@ -75,7 +75,8 @@ class TrackResult:
     the learned polarity per mark ('dark' or 'bright'; absent if the mark was never found);
     ``centre_sigma_px`` the part of ``sigma_px`` that is one error in every frame: where the
     mark's centre lies on a textured plate (px; 0 on a plain plate, NaN if not estimated);
-    ``mosaic`` whether the frames were a raw colour mosaic, smoothed (core.tracking.mosaic).
+    ``mosaic`` whether the frames were a raw colour mosaic, smoothed (core.tracking.mosaic);
+    ``shaded`` per mark, the frames a passing shadow was divided out of (core.tracking.shade).
     """
 
     time: np.ndarray
@@ -91,6 +92,7 @@ class TrackResult:
     polarity: dict[str, str] = field(default_factory=dict)
     centre_sigma_px: dict[str, float] = field(default_factory=dict)
     mosaic: bool = False
+    shaded: dict[str, int] = field(default_factory=dict)
 
     def to_columns(self) -> dict[str, np.ndarray]:
         """Return the position-CSV columns (docs/design.md section 5) as an ordered dict.

@@ -86,20 +86,22 @@ class Shade:
         for side in range(min(len(halves), 4) // 2):
             self._mix[side, 2 * side:2 * side + 2] = counts[2 * side:2 * side + 2] / counts[
                 2 * side:2 * side + 2].sum()
+        self._sides_rows = [slice(int(side[0]), int(side[-1]) + 1) if side.size else slice(0, 0)
+                            for side in (self.above, self.below)]
         self.enabled = False
         self._reference: np.ndarray | None = None
+        self._side_reference: np.ndarray | None = None
         self._scatter = self._roughness = math.inf
         x = np.linspace(-1.0, 1.0, self.width)
         self._basis, _ = np.linalg.qr(np.vander(x, 3))  # orthonormal: quadratics along x
 
     def _bands(self, region: np.ndarray) -> np.ndarray:
         """Return the mean profile of each half side, upper above, lower above, ... (4 x width)."""
-        try:  # OpenCV's reduction: a third of numpy's time on a frame's ROI
-            return np.vstack([cv2.reduce(region[rows], 0, cv2.REDUCE_AVG, dtype=cv2.CV_64F)
-                              for rows in self._halves])
-        except cv2.error:  # a pixel type OpenCV does not take
-            return np.stack([region[rows].mean(axis=0, dtype=np.float64)
-                             for rows in self._halves])
+        return _row_means(region, self._halves)
+
+    def _sides(self, region: np.ndarray) -> np.ndarray:
+        """Return the mean profile of the rows above and of those below the mark (2 x width)."""
+        return _row_means(region, self._sides_rows)
 
     def _departure(self, ratio: np.ndarray) -> np.ndarray:
         """Return each side's RMS departure from its best quadratic along x."""
@@ -120,10 +122,13 @@ class Shade:
                 or self.width < 16:
             return
         reference = np.median([self._bands(region) for region in regions], axis=0)
-        if not np.all(np.isfinite(reference)) or reference.min() <= 0:
+        sides = np.array([self._sides(region) for region in regions])
+        side_reference = np.median(sides, axis=0)
+        if not (np.all(np.isfinite(reference)) and np.all(np.isfinite(side_reference))
+                and reference.min() > 0 and side_reference.min() > 0):
             return
-        self._reference = reference
-        ratios = [self._mix @ (self._bands(region) / reference) for region in regions]
+        self._reference, self._side_reference = reference, side_reference
+        ratios = sides / side_reference
         scatter = float(np.median([self._departure(r).max() for r in ratios]))
         if not scatter <= PLAIN_AT_MOST:
             return
@@ -133,11 +138,9 @@ class Shade:
 
     def light(self, region: np.ndarray) -> np.ndarray | None:
         """Return the light over ``region`` (height x width) when a shadow is on it, else None."""
-        if not self.enabled or self._reference is None:
+        if not self.enabled or self._reference is None or self._side_reference is None:
             return None
-        bands = self._bands(region) / self._reference
-        ratio = self._mix @ bands
-        departure = self._departure(ratio)
+        departure = self._departure(self._sides(region) / self._side_reference)
         if not np.all(np.isfinite(departure)) or departure.max() < max(
                 STANDS_OUT * self._scatter, AT_LEAST):
             return None
@@ -145,7 +148,7 @@ class Shade:
             return None  # something over one side only
         # A hot pixel is not shadowed: a median of 3 columns leaves its spike out, and an
         # edge as it is
-        bands = median_filter(bands, size=(1, 3), mode='nearest')
+        bands = median_filter(self._bands(region) / self._reference, size=(1, 3), mode='nearest')
         ratio = self._mix @ bands
         smooth = _smooth(ratio)
         # Sharp edges (an object in front: a blade, a fibre) leave what smoothing cannot follow
@@ -191,6 +194,15 @@ class Shade:
         if level.min() <= black:
             return light
         return (light * level - black) / (level - black)
+
+
+def _row_means(region: np.ndarray, rows: list[slice]) -> np.ndarray:
+    """Return the mean along each slice of ``region``'s rows (len(rows) x width)."""
+    try:  # OpenCV's reduction: a third of numpy's time on a frame's ROI
+        return np.vstack([cv2.reduce(region[part], 0, cv2.REDUCE_AVG, dtype=cv2.CV_64F)
+                          for part in rows])
+    except cv2.error:  # a pixel type OpenCV does not take
+        return np.stack([region[part].mean(axis=0, dtype=np.float64) for part in rows])
 
 
 def _smooth(ratio: np.ndarray) -> np.ndarray:

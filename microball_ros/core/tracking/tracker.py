@@ -76,6 +76,7 @@ class Tracker:
         self.index = 0
         self.mosaic = False  # the frames are a raw colour mosaic (core.tracking.mosaic)
         self.shades: dict[str, Shade] = {}  # per mark, a passing shadow's light (priming)
+        self.shaded = dict.fromkeys(self.marks, 0)  # per mark, frames a shadow was divided out of
 
     def frame_time(self, index: int) -> float:
         """Return the mid-exposure time (s) of frame ``index``."""
@@ -126,7 +127,10 @@ class Tracker:
         """
         shaded = self._shaded(name, frame)
         found = mark.measure(shaded)
-        if shaded is frame or not found.valid:
+        if shaded is frame:
+            return found
+        self.shaded[name] += 1
+        if not found.valid:
             return found
         return dataclasses.replace(found, sigma_px=found.sigma_px * SHADED_SIGMA)
 
@@ -232,4 +236,4 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         exposure=tracker.exposure, names=names,
         polarity={n: m.polarity for n, m in tracker.marks.items() if m.polarity},
         centre_sigma_px={n: m.centre_sigma_px for n, m in tracker.marks.items()},
-        mosaic=tracker.mosaic)
+        mosaic=tracker.mosaic, shaded=dict(tracker.shaded))
