@@ -9,13 +9,13 @@ rows above and below the mark see the same shadow, shifted along x by its tilt, 
 mark never enters them (the plates move along x only).
 
 Learned once, after the mark's rows are known (from priming): the mean profile of up to
-``SIDE_ROWS`` rows on each side, ``GAP_ROWS`` away from the mark's rows, over the priming
-frames (the median over frames: the plate, its vignetting and its dust, so dividing by it
-leaves the light alone), and how far a frame's side profiles depart from a quadratic light
-along x (their scatter, the median over the priming frames). Nothing is learned, and nothing
-ever changes, when a side has fewer than ``MIN_SIDE`` rows or the side rows scatter over
-``PLAIN_AT_MOST`` (a texture moving with the plate; the sides then say nothing about the
-light).
+``SIDE_ROWS`` rows on each side, ``GAP_ROWS`` away from the mark's rows, and of each half of
+them, over the priming frames (the median over frames: the plate, its vignetting and its
+dust, so dividing by it leaves the light alone), and how far a frame's side profiles depart
+from a quadratic light along x (their scatter, the median over the priming frames). Nothing
+is learned, and nothing ever changes, when a side has fewer than ``MIN_SIDE`` rows or the
+side rows scatter over ``PLAIN_AT_MOST`` (a texture moving with the plate; the sides then say
+nothing about the light).
 
 Per frame, ``light`` returns None (the frame is measured as it is) unless the side profiles,
 divided by what priming learned, depart from a quadratic by more than ``STANDS_OUT`` times
@@ -49,8 +49,9 @@ STANDS_OUT = 4.0  # a frame's departure this many times priming's scatter is a s
 AT_LEAST = 0.01  # ... and at least this (relative light)
 SMOOTH_PX = 15  # the light along x: a cubic fitted over this many columns about each
 # The most smoothing removes from a side, less SHARP times its RMS while priming (the noise),
-# over EDGE of the side's range: sharp edges. A shadow's penumbra of 3 / 4 / 8 px leaves 0.06 /
-# 0.02 / 0 of its depth, of 1-2 px 0.17-0.11, and a blade's edge (1.6 px) 0.15.
+# over EDGE of the side's range: sharp edges. On test_tracking_shade's scenes a shadow's
+# penumbra of 3 / 4 / 8 px leaves 0.06 / 0.02 / under 0 of its depth, of 1-2 px 0.16-0.10,
+# and a blade's edge (1.6 px) 0.14.
 SHARP = 4.0
 EDGE = 0.08
 SIDES_ALIKE = 0.5  # the sides' departures within this ratio (a straight shadow: alike)
