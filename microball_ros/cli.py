@@ -7,7 +7,6 @@ and exit status 1. The work itself lives in app/ and below; this file parses and
 
 import argparse
 import json
-import math
 import os
 import sys
 
@@ -162,6 +161,7 @@ def cmd_track(args):
     """
     import itertools
 
+    from microball_ros.app.tracking import summary_lines
     from microball_ros.core.tracking import TrackerConfig, check_scale, draw_tracking
     from microball_ros.io.positions_csv import write_positions_csv
     from microball_ros.io.video import FrameSource, track_video
@@ -202,43 +202,9 @@ def cmd_track(args):
                 for name in ('slider', 'stator')}
         print(f"wrote {len(columns['time'])} frames to {args.output} "
               f"(lost: slider {lost['slider']}, stator {lost['stator']})")
-        centres = _centre_errors(result.centre_sigma_px)
-        if centres:
-            print(centres)
-            if source.lossy:
-                print(f'lossy video ({source.codec or "JPEG images"}): on MPEG-4 and MJPEG '
-                      "videos a textured mark's centre was up to 5 times further off than "
-                      'said (2 of 4 marks tested; README)')
-        if any(result.shaded.values()):
-            print(_shadow_line(result.shaded, args.black_level))
-        if result.mosaic:
-            print('the frames are a raw colour mosaic (Bayer, not demosaiced): tracked smoothed '
-                  '[1 2 1] / 4 in x and y')
+        for line in summary_lines(result, source, args.black_level):
+            print(line)
     return 0
-
-
-def _shadow_line(shaded, black_level):
-    """Return the line saying how many frames a passing shadow was divided out of."""
-    from microball_ros.core.tracking.tracker import SHADED_SIGMA
-
-    line = (f"a shadow was divided out of {shaded.get('slider', 0)} / "
-            f"{shaded.get('stator', 0)} frames (slider / stator; its light taken beside each "
-            f'mark, their standard errors times {SHADED_SIGMA:g})')
-    if black_level == 0:
-        line += ': if the camera has a dark offset, give it (--black-level DN)'
-    return line
-
-
-def _centre_errors(sigmas):
-    """Return a line on where the marks' centres lie on their plates, or '' if exactly."""
-    if all(sigmas.get(name) == 0.0 for name in ('slider', 'stator')):
-        return ''
-    parts = []
-    for name in ('slider', 'stator'):
-        sigma = sigmas.get(name, math.nan)
-        parts.append(f'{name} not estimated' if math.isnan(sigma) else f'{name} +-{sigma:.3f} px')
-    return (f"marks' centres on their plates: {', '.join(parts)} (one error common to "
-            'every frame, in the sigma columns; it cancels in velocities and accelerations)')
 
 
 def cmd_render(args):

@@ -41,7 +41,6 @@ from microball_ros.core.tracking.centroid_priming import (
 from microball_ros.core.tracking.image import roi_region
 from microball_ros.core.tracking.profile import (
     column_profile,
-    default_saturation,
     deficit_noise,
     disturbed,
     plate_row_weights,
@@ -49,6 +48,7 @@ from microball_ros.core.tracking.profile import (
     polarity_of_pixels,
     relative_deficit,
     row_weights,
+    saturation_level,
     smooth,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
@@ -164,8 +164,7 @@ class CentroidMarkTracker(CentroidPriming):
         profile = column_profile(region)
         if not np.all(np.isfinite(profile)):
             return self._invalid('non-finite pixels')
-        saturation = (cfg.saturation_level if cfg.saturation_level is not None
-                      else default_saturation(region.dtype))
+        saturation = saturation_level(region.dtype, cfg.saturation_level)
         if saturation is not None and profile.max() >= saturation:
             return self._invalid('saturated')
         raw = region

@@ -35,9 +35,9 @@ from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.profile import (
     Baseline,
     column_profile,
-    default_saturation,
     deficit_noise,
     polarity_of,
+    saturation_level,
 )
 from microball_ros.core.tracking.results import MarkMeasurement
 from microball_ros.core.tracking.search import peak_offset
@@ -116,8 +116,7 @@ class LearnedMarkTracker:
         profile = column_profile(region)
         if not np.all(np.isfinite(profile)):
             return self._invalid('non-finite pixels')
-        saturation = (cfg.saturation_level if cfg.saturation_level is not None
-                      else default_saturation(region.dtype))
+        saturation = saturation_level(region.dtype, cfg.saturation_level)
         if saturation is not None and profile.max() >= saturation:
             return self._invalid('saturated')
         if self.template is None:

@@ -80,9 +80,9 @@ from microball_ros.core.tracking.plate_search import plate_level, search_plate
 from microball_ros.core.tracking.priming import TEXTURE_SCORE
 from microball_ros.core.tracking.profile import (
     LIGHT_FLANK,
-    default_saturation,
     glint_columns,
     light_level,
+    saturation_level,
 )
 from microball_ros.core.tracking.results import MarkMeasurement, with_centre
 from microball_ros.core.tracking.smear import path_range, predicted_kernel
@@ -175,8 +175,7 @@ class PlateMarkTracker(PlatePriming):
         profile = self.weights @ region.astype(np.float64)
         if not np.all(np.isfinite(profile)):
             return self._invalid('non-finite pixels')
-        saturation = (cfg.saturation_level if cfg.saturation_level is not None
-                      else default_saturation(region.dtype))
+        saturation = saturation_level(region.dtype, cfg.saturation_level)
         if saturation is not None and profile.max() >= saturation:
             return self._invalid('saturated')
         # A dark mark never saturates a pixel: on a plate that did not while priming, a

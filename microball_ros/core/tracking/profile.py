@@ -43,8 +43,13 @@ def column_profile(region: np.ndarray) -> np.ndarray:
     return region.astype(np.float64).mean(axis=0)
 
 
-def default_saturation(dtype: np.dtype) -> float | None:
-    """Return the level at which a sensor of this pixel type saturates (None: unknown)."""
+def saturation_level(dtype: np.dtype, given: float | None = None) -> float | None:
+    """Return the saturation level: ``given`` (the config's), else the pixel type's.
+
+    The pixel type's is the level at which a sensor of that type saturates (None: unknown).
+    """
+    if given is not None:
+        return given
     if dtype == np.uint8:
         return 255.0
     if dtype == np.uint16:
@@ -61,7 +66,7 @@ def glint_columns(region: np.ndarray, rows: np.ndarray,
     specular glint, not the mark (blind set 5: one riding 14 px beside a disc on a speckle
     cost 71 frames, the fit's residual refused).
     """
-    level = saturation if saturation is not None else default_saturation(region.dtype)
+    level = saturation_level(region.dtype, saturation)
     if level is None:
         return None
     hot = (region[rows] >= level).any(axis=0)

@@ -32,7 +32,7 @@ from microball_ros.core.tracking.image import (
 )
 from microball_ros.core.tracking.mark import MarkTracker
 from microball_ros.core.tracking.mosaic import is_mosaic, unmosaic
-from microball_ros.core.tracking.profile import default_saturation
+from microball_ros.core.tracking.profile import saturation_level
 from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
 from microball_ros.core.tracking.shade import Shade
 
@@ -149,8 +149,7 @@ class Tracker:
         light = shade.light(region)
         if light is None:
             return frame
-        saturation = (self.config.saturation_level if self.config.saturation_level is not None
-                      else default_saturation(frame.dtype))
+        saturation = saturation_level(frame.dtype, self.config.saturation_level)
         first, stop = shade.rows
         if saturation is not None and float(
                 region[first:stop].mean(axis=0).max()) >= saturation:
