@@ -368,9 +368,14 @@ def test_after_a_loss_the_mark_is_among_the_best_matches_beside_a_stronger_parti
     d = 0.5 * (np.abs(x - 60.3) <= 6) + 0.6 * np.exp(-0.5 * ((x - 110.0) / 8.0) ** 2)
     best = match_plate(plate, d, 0, 200, [(0.0, 0.0), (16.0, 0.0)], 10.0)
     assert len(best) == 1 and abs(best[0][0] - 110.0) < 2.0  # the particle matches best
-    found = match_plate(plate, d, 0, 200, [(0.0, 0.0), (16.0, 0.0)], 10.0, count=3)
+    found = match_plate(plate, d, 0, 200, [(0.0, 0.0), (16.0, 0.0)], 10.0, count=3,
+                        shaped=False)
     assert found[0] == best[0]
     assert any(abs(column - 60.3) < 0.5 for column, _, _ in found[1:])
+    # Ordered by shape too (after priming): a particle about as wide as the mark and
+    # stronger is still first; the mark is among the candidates
+    shaped = match_plate(plate, d, 0, 200, [(0.0, 0.0), (16.0, 0.0)], 10.0, count=3)
+    assert any(abs(column - 60.3) < 0.5 for column, _, _ in shaped)
 
 
 def test_agreeing_leaves_out_a_few_frames_where_two_tracks_part():

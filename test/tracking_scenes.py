@@ -7,10 +7,10 @@ moving along x;
 optional surface texture that moves with its plate, a static texture (fixed in the image:
 light added, ``static_texture`` in DN, or a transmission, ``static_transmission`` relative),
 illumination flicker, a soft shadow sweeping over the plates, a camera's dark offset,
-occlusions, 8- or 16-bit output. Everything is analytic: the textures
-are sums of plane waves, so motion blur, pixel integration and the optical PSF are exact
-factors per wave; the marks are boxes or Gaussians integrated over each pixel and averaged
-over the sub-exposure positions. Truth is the exposure-averaged mark column (px).
+occlusions, a tool held beside a mark's path, 8- or 16-bit output. Everything is analytic:
+the textures are sums of plane waves, so motion blur, pixel integration and the optical PSF
+are exact factors per wave; the marks are boxes or Gaussians integrated over each pixel and
+averaged over the sub-exposure positions. Truth is the exposure-averaged mark column (px).
 """
 
 from dataclasses import dataclass, field
@@ -148,7 +148,8 @@ class Scene:
     expected: list
 
 
-def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), passing=()):
+def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), passing=(),
+           tools=()):
     """Render ``n_frames`` frames; ``covers`` = [(plate, first, last)] frames hiding a mark.
 
     A cover paints the plate's own level (times the illumination) over the mark's whole
@@ -158,6 +159,10 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), pas
     ``passing`` = [(plate, first, last, x_first, x_last, radius, depth)]: a particle of its
     own, a disc in the mark's rows moving from column x_first (frame first) to x_last (frame
     last) at a steady speed, that lets 1 - depth of the light through.
+    ``tools`` = [(plate, first, last, left, right, level, tilt)]: a tool held still over the
+    plate's whole band in frames first..last, columns left..right at the band's middle row,
+    its edges tilted ``tilt`` degrees from the vertical, of ``level`` DN, drawn over the mark
+    (edges blurred by the PSF).
     """
     rng = np.random.default_rng(seed)
     cols = np.arange(spec.width, dtype=float)
@@ -206,6 +211,14 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), pas
                     inside = np.clip(radius + 0.5 - np.hypot(cols[None, :] - cx,
                                                              rows[band][:, None] - cy), 0, 1)
                     scene[band] += inside * (level - scene[band])
+        for name, first, last, left, right, level, tilt in tools:
+            if not first <= n <= last:
+                continue
+            top, bottom = (int(v) for v in spec.plates[name].band)
+            shift = math.tan(math.radians(tilt)) * (rows[top:bottom] - (top + bottom) / 2.0)
+            x = cols[None, :] - shift[:, None]
+            inside = ndtr((x - left) / spec.psf) - ndtr((x - right) / spec.psf)
+            scene[top:bottom] += inside * (level - scene[top:bottom])
         for name, first, last, x_first, x_last, radius, depth in passing:
             if first <= n <= last:
                 top, bottom = (int(v) for v in spec.plates[name].band)

@@ -36,16 +36,21 @@ averaged over the exposure. The tracker
    particle over a flank does not tilt it: profile.light_level), to the profile over the whole
    learned plate placed at the predicted position, so the texture is not mistaken for light and
    the mark's contrast is relative to the plate next to it in the same frame (flicker does not
-   look like a covered mark); then searches the mark by a matched filter of ``D`` smeared by
-   the predicted motion (a sinusoid of the priming track's frequency), gated around the
-   predicted position (``MotionPredictor``; from the seventh frame on, by the priming track's
-   frequency until its recurrence has the frames it needs) so texture dips never win; after a
-   loss over the whole ROI (plate_search.search_kernels), where a first fit poorer than
-   priming's is refused and the ``plate_search.CANDIDATES`` best matches are tried in turn (a
-   particle near the mark matches better than the mark). A match ``RELIGHT`` px or more from
-   where it was predicted (or without a prediction) has the light fitted again beside it;
+   look like a covered mark; a flank whose light is far from the light at the mark in the
+   last frames, under a tool held beside it, gives way to the other); then searches the mark
+   by a matched filter of ``D`` smeared by the predicted motion (a sinusoid of the priming
+   track's frequency), gated around the predicted position (``MotionPredictor``; from the
+   seventh frame on, by the priming track's frequency until its recurrence has the frames it
+   needs) so texture dips never win; after a loss over the whole ROI
+   (plate_search.search_kernels), where a first fit poorer than priming's is refused and the
+   ``plate_search.CANDIDATES`` best matches are tried in turn (a particle near the mark
+   matches better than the mark; after priming, those shaped most like the mark first: a
+   tool beside its path matches better at several places). A match ``RELIGHT`` px or more
+   from where it was predicted (or without a prediction) has the light fitted again beside it;
 3. fits ``s``, ``L`` and ``Q`` (Gauss-Newton, ``c`` and ``g`` solved linearly, with fallbacks
    for a poor fit: ``PlateModel.fit_frame``): the texture, common to data and model, is signal;
+   columns of the other polarity or deeper than the mark (a tool beside it) are left out,
+   and the mark is partly hidden if they reach its core;
 4. checks the mark's path clear of the ROI edges, its contrast ``g`` against recent frames
    (a covered mark loses contrast; a jump of it, something passing beside the mark, is refused:
    core.tracking.gains) and the fit's residual against the residuals while priming: a failed
@@ -69,6 +74,7 @@ mark).
 import copy
 import dataclasses
 import math
+import statistics
 
 import numpy as np
 
@@ -100,6 +106,11 @@ RELIGHT = 8.0  # px: a match this far from the prediction has the light fitted a
 FREE_AGREE = 3.0
 FREE_SLACK = 0.1
 FREE_SLACK_MOST = 1.0
+# Columns whose deficit is under OPPOSITE times the plate's least (or 0), or over DEEPER
+# times its most, by OPPOSITE_NOISE times priming's residual, at least OPPOSITE_RUN of them, are
+# something else: left out of the fit with OPPOSITE_GUARD columns beside them; over the
+# model's CORE, the mark is hidden
+OPPOSITE, DEEPER, OPPOSITE_NOISE, OPPOSITE_RUN, OPPOSITE_GUARD, CORE = 3.0, 1.3, 6.0, 3, 2, 0.25
 
 
 class PlateMarkTracker(PlatePriming):
@@ -124,11 +135,14 @@ class PlateMarkTracker(PlatePriming):
         plate, w = ratio, self.roi[2]
         if self._full is not None and math.isfinite(center):  # the learned plate, smeared
             plate = ratio / plate_level(self._full, center - self._shift, sign, kernel, w)
+        expected = statistics.median(self._lights) if self._lights else None
         level = light_level(plate, self.polarity, center, extent,
                             flank=LIGHT_FLANK if math.isfinite(center) else None,
-                            noise=self._rms)
+                            noise=self._rms, expected=expected, both=not self.priming)
         if level is None:
             return None
+        if math.isfinite(center):
+            self._light = float(level[int(np.clip(round(center), 0, w - 1))])
         return sign * (1.0 - ratio / level)
 
 
@@ -198,8 +212,13 @@ class PlateMarkTracker(PlatePriming):
         if d is None:
             return self._invalid('too dark')
         failure = None
+        # After priming, a loss's candidates are ordered by their shape too (plate_search): a
+        # tool beside the mark's path matches better than the mark at several places. While
+        # priming, by their match alone (t18 and t20 of an independent set: 0.22 -> 0.26 and
+        # 0.021 -> 0.036 px RMS for one slider, with the plate learned from other frames).
         for match in search_plate(plate, d, gated, kernel, self._motion or self._periodic,
-                                  self._motion is not None, self._half + cfg.pad_px):
+                                  self._motion is not None, self._half + cfg.pad_px,
+                                  shaped=not self.priming):
             # A next-best match refused leaves no trace in the guards (the best's does, as ever)
             saved = None if failure is None else (copy.deepcopy(self._gains), len(
                 self._guard.log or ()))
@@ -238,6 +257,19 @@ class PlateMarkTracker(PlatePriming):
             inside = (index >= 0) & (index < w)
             valid[inside] &= ~self._clipped[index[inside]]
             window[~valid] = 0.0
+        # Something beside the mark of the other polarity (a dark tool beside a bright mark:
+        # far below the plate's least deficit) or deeper than the mark anywhere (a dark tool
+        # beside a dark mark) is no part of it: left out, unless it reaches the mark's core
+        # (then the mark is partly hidden)
+        margin = OPPOSITE_NOISE * self._rms
+        other = valid & ((window < OPPOSITE * min(float(plate.values.min()), 0.0) - margin)
+                         | (window > DEEPER * float(plate.values.max()) + margin))
+        if np.count_nonzero(other) >= OPPOSITE_RUN:
+            model = plate.model(start - j0 - plate.center, blur, curve)
+            if np.any(other & (model > CORE * float(model.max()))):
+                return ('mark partly hidden', 0.0, math.nan)
+            valid &= ~(np.convolve(other, np.ones(2 * OPPOSITE_GUARD + 1), 'same') > 0)
+            window[~valid] = 0.0
         tolerance = REACQUIRE_MATCH if lost else cfg.match_tolerance + 0.5
         # Restarted from short kernels if poor; then, on a plain plate only, fitted without
         # what passes beside the mark (a whole-frame smear on a speckle often fits that poorly:
@@ -265,8 +297,9 @@ class PlateMarkTracker(PlatePriming):
         if first < 1 or last > w - 2:
             return ('mark at the ROI edge', 0.0, peak)
         around = path_range(blur, curve, self._whole)
+        core = path_range(blur, curve, self._half)
         if self._guard.hidden(region, position + around[0], position + around[1],
-                              self.polarity or 'dark'):
+                              self.polarity or 'dark', (position + core[0], position + core[1])):
             return ('mark partly hidden', 0.0, peak)
         # A fit no quadratic path explains (a slider breaking away mid-exposure) that would be
         # refused, for its residual or its gain, gets a kernel of any shape (core.tracking.
@@ -296,6 +329,8 @@ class PlateMarkTracker(PlatePriming):
             return (reason, quality, peak)
         # A frame no quadratic path fits is no guide to the next: predicted as after a loss
         self._predictor.add(position if kernel is not None else math.nan)
+        if math.isfinite(self._light):
+            self._lights.append(self._light)
         self._kernel = kernel
         return MarkMeasurement(position + self.roi[0] + self._offset, quality,
                                sigma_px=with_centre(sigma * self._sigma_scale,

@@ -8,6 +8,7 @@ learned plate (plain or textured, a long smear's); learning the plate twice
 Priming tracks its own frames with ``measure`` (the subclass's) to judge and calibrate a plate.
 """
 
+from collections import deque
 import math
 
 import numpy as np
@@ -45,6 +46,8 @@ from microball_ros.core.tracking.still import StillMark, is_still
 # A plain plate's plate is kept if it reports every frame the centroid does over priming and
 # is priming.steadier than it by this margin.
 PLAIN_MARGIN = 0.95
+# The light expected at the mark is the median of its light in this many last frames found
+LIGHT_MEMORY = 5
 
 
 class PlatePriming:
@@ -71,6 +74,9 @@ class PlatePriming:
         self.priming = False  # the priming frames are being tracked (``_track_priming``)
         self._predictor = MotionPredictor()
         self._gains = MarkGains(int(self.config.area_history))  # and the jump guard
+        # The light at the mark in the last frames it was found in (plate._deficit's)
+        self._lights: deque[float] = deque(maxlen=LIGHT_MEMORY)
+        self._light = math.nan  # ... in the frame being measured
         self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
         self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
         self._refused = False  # a long smear whose plate could not be learned: all NaN
@@ -153,6 +159,7 @@ class PlatePriming:
         """Forget the track (what was learned is kept)."""
         self._predictor.reset()
         self._gains.reset()
+        self._lights.clear()
         self._moved = False
         self._gathered = None
         polarity = self._fallback.polarity

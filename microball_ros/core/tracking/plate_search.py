@@ -33,17 +33,20 @@ def search_kernels(motion, blurs: bool, kernel=None) -> list[tuple[float, float]
 
 
 def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, reach: float,
-                count: int = 1, least: float = NEXT_GAIN) -> list[tuple[float, float, float]]:
+                count: int = 1, least: float = NEXT_GAIN,
+                shaped: bool = True) -> list[tuple[float, float, float]]:
     """Return up to ``count`` (column, blur, curve): the best matches of the smeared plate.
 
     Columns ``lo`` to ``hi`` (exclusive) of the deficit ``d`` are candidate centres; each
     (blur, curve) of ``kernels`` smears the plate's part within ``reach`` plus the kernel's
     half-length of its origin. Score: correlation over the model's norm, a column refined by a
-    parabola through its neighbours' scores. The best first; then, with ``count`` > 1, the
-    next-best peaks of any kernel's score, ``reach`` px from those before (something darker
-    than the mark passing near it scores higher than the mark), that match the plate at a gain
-    of ``least`` or more (the score of ``g`` times the plate is ``g`` times its norm: noise
-    peaks, as in a covered ROI, are not worth fitting). Empty if no kernel has a norm.
+    parabola through its neighbours' scores. With ``count`` 1, the best. Else the peaks of
+    any kernel's score that match the plate at a gain of ``least`` or more (the score of ``g``
+    times the plate is ``g`` times its norm: noise peaks, as in a covered ROI, are not worth
+    fitting), ``reach`` px apart, ordered by their score times ``shape_scores`` squared
+    (something darker than the mark passing near it scores higher than the mark; not
+    ``shaped``: by their score), the best first; the best alone if there are none. Empty if
+    no kernel has a norm.
     """
     c = plate.center
     best = None
@@ -61,25 +64,54 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
         a, b = lo - core, hi + core
         padded[max(a, 0) - a:min(b, d.size) - a] = d[max(a, 0):min(b, d.size)]
         score = np.correlate(padded, template, mode='valid') / norm
-        scores.append((score, blur, curve, norm))
+        scores.append((score, blur, curve, norm, padded, template))
         k = int(np.argmax(score))
         if best is None or score[k] > best[0]:
             best = (float(score[k]), lo + k + peak_offset(score, k), blur, curve)
     if best is None:
         return []
-    found = [best[1:]]
-    if count > 1:
-        peaks = [(float(score[k]), int(k), score, blur, curve)
-                 for score, blur, curve, norm in scores
-                 for k in find_peaks(score, distance=max(int(reach), 1),
-                                     height=least * norm)[0]]
-        for _, k, score, blur, curve in sorted(peaks, key=lambda peak: -peak[0]):
-            if len(found) == count:
-                break
-            column = lo + k + peak_offset(score, k)
-            if all(abs(column - other[0]) >= reach for other in found):
-                found.append((column, blur, curve))
-    return found
+    if count == 1:
+        return [best[1:]]
+    # The peaks of every kernel's score that match at a gain of ``least`` or more; shaped, most
+    # like the mark first: the score times its shape's correlation with the smeared plate,
+    # squared (a tool darker and wider than the mark beside it scores higher than the mark,
+    # at several peaks along it, but is not shaped like it; a faint texture shaped like it
+    # scores low). Else the best (its column refined), then the others by their score.
+    peaks = []
+    for score, blur, curve, norm, padded, template in scores:
+        columns = find_peaks(score, distance=max(int(reach), 1), height=least * norm)[0]
+        if shaped:
+            k = int(np.argmax(score))
+            if score[k] >= least * norm and k not in columns:
+                columns = np.append(columns, k)
+            shapes = np.clip(shape_scores(padded, template, columns), 0.0, None)
+        else:
+            shapes = np.ones(columns.size)
+        peaks += [(float(score[k]) * shape ** 2, int(k), score, blur, curve)
+                  for shape, k in zip(shapes, columns, strict=True)]
+    found: list[tuple[float, float, float]] = [] if shaped else [best[1:]]
+    for _, k, score, blur, curve in sorted(peaks, key=lambda peak: -peak[0]):
+        if len(found) == count:
+            break
+        column = lo + k + peak_offset(score, k)
+        if all(abs(column - other[0]) >= reach for other in found):
+            found.append((column, blur, curve))
+    return found or [best[1:]]
+
+
+def shape_scores(padded: np.ndarray, template: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Return the zero-mean normalised correlation of ``template`` at each of ``starts``.
+
+    ``padded[start:start + template.size]`` against the template, both less their means:
+    1 for the mark's own shape at any gain and light, about 0 over a flat dark object.
+    """
+    n = template.size
+    shaped = template - template.mean()
+    norm = math.sqrt(float(shaped @ shaped))
+    windows = padded[starts[:, None] + np.arange(n)[None, :]]
+    windows = windows - windows.mean(axis=1, keepdims=True)
+    energy = np.sqrt(np.einsum('ij,ij->i', windows, windows)) * norm
+    return np.where(energy > 0, windows @ shaped / np.where(energy > 0, energy, 1.0), 0.0)
 
 
 def plate_level(full: PlateModel | None, s: float, sign: float, kernel,
@@ -95,14 +127,14 @@ def plate_level(full: PlateModel | None, s: float, sign: float, kernel,
 
 
 def search_plate(plate: PlateModel, d: np.ndarray, prediction, kernel, motion, smeared: bool,
-                 reach: float) -> list[tuple[float, float, float]]:
+                 reach: float, shaped: bool = True) -> list[tuple[float, float, float]]:
     """Return the (column, blur, curve) to fit the plate at: the best match first.
 
     Gated around ``prediction`` (core.tracking.predict's; one kernel, the predicted
     ``kernel``) when there is one: that match. Else over the whole ROI with a bank of kernels
     (``search_kernels``: ``motion``'s, and straight blurs unless ``smeared``, a long smear's
-    plate): the best ``CANDIDATES`` matches. ``reach``: ``match_plate``'s. Empty if the gate
-    is outside the ROI.
+    plate): the best ``CANDIDATES`` matches. ``reach`` and ``shaped``: ``match_plate``'s.
+    Empty if the gate is outside the ROI.
     """
     if prediction is not None:
         gate = 6.0 * prediction.spread + 3.0
@@ -116,4 +148,4 @@ def search_plate(plate: PlateModel, d: np.ndarray, prediction, kernel, motion, s
     if hi <= lo:
         return []
     return match_plate(plate, d, lo, hi, kernels, reach,
-                       1 if prediction is not None else CANDIDATES)
+                       1 if prediction is not None else CANDIDATES, shaped=shaped)

@@ -27,6 +27,10 @@ LIGHT_FLANK = 48.0  # light_level's flank while tracking: px on either side of t
 ONE_SIDE = 24  # light_level: a flank this long alone gives the light's slope (an ROI's end)
 SUSPECT = 3.0  # light_level: a fit scattering this many times the noise is started again
 SIDES_APART = 0.2  # ... from one flank alone if the two flanks' lights differ this much
+# light_level without a centre, ``both``: columns this many spreads off the light the other
+# way (a dark tool in a bright mark's ROI, a glint in a dark one's) are no light either
+OTHER_SIDE = 6.0
+DEPARTS = 0.05  # light_level: a light this far from the one expected has its flanks checked
 
 MAD_TO_SIGMA = 1.4826
 _EPS = float(np.finfo(float).eps)
@@ -334,7 +338,8 @@ def _span(width: int) -> np.ndarray:
 
 def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.nan,
                 extent: float = 0.0, order: int | None = None,
-                flank: float | None = None, noise: float | None = None) -> np.ndarray | None:
+                flank: float | None = None, noise: float | None = None,
+                expected: float | None = None, both: bool = False) -> np.ndarray | None:
     """Return this frame's light over a profile divided by the static field; None if dark.
 
     The light (a gain, flicker, and a low-order gradient) is the polynomial of degree
@@ -345,9 +350,18 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     far beyond ``extent`` on either side are used, and the light is a straight line across
     the mark; when one side is missing (an ROI's end), a line through the other if it holds
     ``ONE_SIDE`` columns (a light gradient: a textured mark 5 px from the ROI's end lost 9 of
-    240 frames with a constant), else a constant. With a centre, a fit that scatters over
+    240 frames with a constant), else a constant. Without a centre, ``both``: the columns
+    ``OTHER_SIDE`` spreads off the light the other way are left out too (a dark tool in a
+    bright mark's ROI: the light through it was 0.05 at the tool's side of the ROI, every
+    frame after a loss 'too dark'). With a centre, a fit that scatters over
     ``SUSPECT`` times the ``noise`` per column (if not given, from the second differences in
     the flanks) is started again from the columns near the median (a particle over a flank).
+
+    ``expected`` (the light at the mark in recent frames, if known): when the light found
+    departs from it by over ``DEPARTS`` (or none is found: it crossed 0), it is the light of
+    the flank nearer to it, if that one is within ``SIDES_APART`` of it and scatters under
+    half as much (something dark over one flank, a tool beside the mark, is no light: fitted
+    through it, the light at the mark was 0.35-0.8 for 1; a flicker moves both flanks alike).
     """
     sign = 1.0 if polarity == 'dark' else -1.0
     order = LIGHT_ORDER if order is None else int(order)
@@ -370,9 +384,22 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     # large dark object beyond a flank tilts it until it crosses 0 at the ROI's far end).
     within = None if flank is None or not math.isfinite(center) else (
         np.abs(np.arange(w) - center) <= 0.5 * extent + flank)
-    found = _fit_light(ratio, u, keep, order, sign, math.isfinite(center), least, within)
-    if found is None or not math.isfinite(center):
+    found = _fit_light(ratio, u, keep, order, sign, math.isfinite(center), least, within,
+                       both)
+    if not math.isfinite(center):
         return None if found is None else found[0]
+    at = int(np.clip(round(center), 0, w - 1))
+    if expected is not None and (found is None or _apart(float(found[0][at]), expected)
+                                 > DEPARTS):
+        lights = [fit for fit in _side_lights(ratio, u, keep, offset, order, sign, least,
+                                              within) if fit is not None]
+        if lights:
+            nearest = min(lights, key=lambda fit: _apart(float(fit[0][at]), expected))
+            if _apart(float(nearest[0][at]), expected) <= SIDES_APART and (
+                    found is None or nearest[1] < 0.5 * found[1]):
+                return nearest[0]
+    if found is None:
+        return None
     # Something large over a flank (a particle) can tilt the first fit so far that its
     # columns do not stand out of the others': the fit then scatters far more than the noise.
     # It starts again from the columns near the median, and is kept if it scatters half as much.
@@ -392,25 +419,36 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     # ... or from one flank alone, when the two flanks' lights differ grossly at the mark:
     # something dark over most of one (a tool reaching into the ROI) holds the median there
     # (the light at a bright mark was 0.8 for 1, or 'too dark').
-    left, right = (_fit_light(ratio, u, keep & side, order if np.count_nonzero(keep & side)
-                              >= ONE_SIDE else 0, sign, True, least, within)
-                   if np.count_nonzero(keep & side) >= least else None
-                   for side in (offset < 0, offset > 0))
+    left, right = _side_lights(ratio, u, keep, offset, order, sign, least, within)
     if left is None or right is None:
         return level
-    at = int(np.clip(round(center), 0, w - 1))
-    apart = abs(float(left[0][at] - right[0][at])) / max(
-        float(max(left[0][at], right[0][at])), 1e-12)
+    apart = _apart(float(left[0][at]), float(right[0][at]))
     best = min((left, right), key=lambda fit: fit[1])
     return best[0] if apart > SIDES_APART and best[1] < 0.5 * spread else level
 
 
-def _fit_light(ratio, u, keep, order, sign, centred, least, within=None):
+def _apart(a: float, b: float) -> float:
+    """Return how far apart two lights are, relative to the larger."""
+    return abs(a - b) / max(a, b, 1e-12)
+
+
+def _side_lights(ratio, u, keep, offset, order, sign, least, within):
+    """Return ``_fit_light``'s fits on the left and on the right flank alone (None: none)."""
+    left, right = (_fit_light(ratio, u, keep & side, order if np.count_nonzero(keep & side)
+                              >= ONE_SIDE else 0, sign, True, least, within)
+                   if np.count_nonzero(keep & side) >= least else None
+                   for side in (offset < 0, offset > 0))
+    return left, right
+
+
+def _fit_light(ratio, u, keep, order, sign, centred, least, within=None, both=False):
     """Return ``light_level``'s fit (level, the spread of the columns kept); None if dark.
 
     Fitted on ``keep``, then again without the columns far off the fit (``centred``: any;
-    else those in a dip), at most 3 times. ``within``: the columns where the light must be
-    positive (None: all); elsewhere it is held at least at half its least value there.
+    else those in a dip and, ``both``, ``OTHER_SIDE`` spreads off it the other way), at most
+    3 times.
+    ``within``: the columns where the light must be positive (None: all); elsewhere it is
+    held at least at half its least value there.
     """
     keep = keep.copy()
     for _ in range(3):
@@ -426,7 +464,8 @@ def _fit_light(ratio, u, keep, order, sign, centred, least, within=None):
         middle = median(d[keep])
         spread = MAD_TO_SIGMA * median(np.abs(d[keep] - middle))
         inside = np.abs(d - middle) <= 4.0 * spread if centred else (
-            d < middle + 3.0 * spread)
+            (d < middle + 3.0 * spread) & (d > middle - (OTHER_SIDE if both else math.inf)
+                                           * spread))
         if np.count_nonzero(keep & inside) < least or np.all(inside[keep]):
             break
         keep &= inside

@@ -20,6 +20,7 @@ ROW_FRACTION = 0.03
 ROW_MARGIN = 3
 ROW_TOLERANCE = 0.06
 ROW_SPREADS = 5.0
+CORE_PAD = 2  # px beside the mark's core in the guard's last window (RowsGuard.hidden)
 
 
 def mark_rows(weights: list[np.ndarray],
@@ -77,8 +78,15 @@ class RowsGuard:
         self._rows, self._band, self._tolerance = mark_rows(self.log or [], height)
         self.log = None
 
-    def hidden(self, region: np.ndarray, first: float, last: float, polarity: str) -> bool:
-        """Return True if the rows of the whole mark (columns first..last) depart from its own."""
+    def hidden(self, region: np.ndarray, first: float, last: float, polarity: str,
+               core: tuple[float, float] | None = None) -> bool:
+        """Return True if the rows of the whole mark (columns first..last) depart from its own.
+
+        ``core``: the columns of the mark's core (its extent at the tracker's threshold, no
+        faint tails); what departs in the whole mark's window but not there, with ``CORE_PAD``
+        px beside it, is something dark beside the mark reaching into the window (a tool's
+        edge 1-3 px from a mark wholly in view), not over it.
+        """
         if self.log is None and self._band is None:
             return False
         own = row_weights(region, int(first), int(last), self.pad, polarity)
@@ -88,12 +96,16 @@ class RowsGuard:
             return False
         if self._rows is None or self._band is None:
             return own is None
+        if not self._departs(own):
+            return False
         # Something beside the mark (a passing particle) spoils one flank: the other will do
-        for sides in ((True, False), (False, True)) if self._departs(own) else ():
-            own = row_weights(region, int(first), int(last), self.pad, polarity, sides)
-            if not self._departs(own):
-                return False
-        return self._departs(own)
+        windows = [(first, last, self.pad)] + ([] if core is None else [(*core, CORE_PAD)])
+        for n, (lo, hi, pad) in enumerate(windows):
+            for sides in ((True, False), (False, True)) + (((True, True),) if n else ()):
+                if not self._departs(row_weights(region, int(lo), int(hi), pad, polarity,
+                                                 sides)):
+                    return False
+        return True
 
     def _departs(self, own: np.ndarray | None) -> bool:
         """Return True if the rows ``own`` (row_weights, None: none) are not the mark's own."""
