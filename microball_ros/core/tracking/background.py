@@ -25,7 +25,10 @@ Pixels the mark covered in too many priming frames (a mark that hardly moves) ge
 correction. The fine part is divided out (a transmission) or subtracted (light added, scaled
 by the frame's level), whichever keeps the mark's integrated deficit steadier over the
 priming frames (``area_scatter``): the wrong one leaves the pattern, darkened by the mark,
-on it. Learned once; not updated while tracking.
+on it. Something opaque fixed in the image (a pattern under ``OPAQUE`` of the ROI's level in
+most rows of a column: a tool held over the plate all along) is divided out too, but what it
+hides is not restored: a mark over such columns is partly hidden (``hides``). Learned once;
+not updated while tracking.
 """
 
 import math
@@ -41,6 +44,7 @@ SMOOTH_PX = 6.0
 MIN_SAMPLES = 8
 MIN_FRAMES = 12
 MIN_GAIN = 0.5
+OPAQUE = 0.25  # of the ROI's level: a static pattern this dark in most rows hides the plate
 MIN_STRUCTURE = 0.25
 MAX_CORRELATION = 0.5
 PROVISIONAL_FRAMES = 15
@@ -76,6 +80,7 @@ class StaticBackground:
         self.added: np.ndarray | None = None
         self.reference = 1.0
         self.gain = 0.0
+        self.opaque: np.ndarray | None = None  # per column: something opaque over it
 
     def clear(self) -> None:
         """Forget the texture."""
@@ -83,6 +88,14 @@ class StaticBackground:
         self.added = None
         self.reference = 1.0
         self.gain = 0.0
+        self.opaque = None
+
+    def hides(self, first: float, last: float) -> bool:
+        """Return True if something opaque fixed in the image is over columns first..last."""
+        if self.opaque is None or self.inverse is None:
+            return False
+        lo, hi = max(int(math.floor(first)), 0), min(int(math.ceil(last)) + 1, self.opaque.size)
+        return bool(np.any(self.opaque[lo:hi]))
 
     @property
     def kind(self) -> str:
@@ -219,6 +232,9 @@ class StaticBackground:
         else:
             self.inverse = inverse
         self.gain = gain
+        # Something opaque fixed in the image (a tool held over the plate all along): dividing
+        # it out does not restore what it hides, so a mark under it is partly hidden
+        self.opaque = np.mean(flat * (1.0 + fine) < OPAQUE, axis=0) > 0.5
 
 
 def area_scatter(regions: np.ndarray, covered: np.ndarray, added: np.ndarray | None,

@@ -348,6 +348,8 @@ class CentroidMarkTracker(CentroidPriming):
         first, last = lo - pad, hi + pad
         if first < 1 or last > w - 2:
             return self._invalid('mark at the ROI edge', contrast=peak)
+        if self._background.hides(first, last):
+            return self._invalid('mark partly hidden', contrast=peak)
         clipped = False
         if saturation is not None:
             window = raw[:, max(first - guard, 0):last + guard + 1]

@@ -212,7 +212,7 @@ class CentroidPriming:
         over the priming frames against the frames as they are (polarity found afresh).
         """
         learned = (self._background.inverse, self._background.added,
-                   self._background.reference, self._background.gain)
+                   self._background.reference, self._background.gain, self._background.opaque)
         sample = frames[::max(len(frames) // 20, 1)]
         polarity = self.polarity
         with_background = self._contrast(sample)
@@ -221,7 +221,7 @@ class CentroidPriming:
             self.polarity = None
         without = self._contrast(sample)
         (self._background.inverse, self._background.added, self._background.reference,
-         self._background.gain) = learned
+         self._background.gain, self._background.opaque) = learned
         self.polarity = polarity
         return with_background >= 0.5 * without
 

@@ -296,6 +296,8 @@ class PlateMarkTracker(PlatePriming):
             return ('no match', 0.0, peak)
         if first < 1 or last > w - 2:
             return ('mark at the ROI edge', 0.0, peak)
+        if self._background is not None and self._background.hides(first, last):
+            return ('mark partly hidden', 0.0, peak)
         around = path_range(blur, curve, self._whole)
         core = path_range(blur, curve, self._half)
         if self._guard.hidden(region, position + around[0], position + around[1],
