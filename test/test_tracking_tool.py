@@ -4,10 +4,11 @@ A probe or tweezers brought over the plate after priming (an independent set's p
 sits at one end of the mark's stroke: the mark comes within a few px of it, passes partly
 under it and comes back, every period. Measured on these scenes before this test existed
 (dark tool, 8 DN, 90 px wide, on a 170 DN plate with a dark mark or a 90 DN one with a bright
-mark; 150 clear frames): 18 and 11 clear frames lost for a dark mark (the light's flank on the
-tool: 'too dark'), 130 and 110 for a bright one (once lost, a bright mark was never found
-again: the light over the whole ROI went through the tool and every candidate after a loss
-was on it). Held from the first frame it was learned as a static pattern and divided out:
+mark; 240 frames, 140-150 of them clear; upright / tilted): 18 and 11 clear frames lost for a
+plain dark mark (the light's flank on the tool: 'too dark'), 130 and 110 for a bright one
+(once lost, a bright mark was never found again: the light over the whole ROI went through
+the tool and every candidate after a loss was on it). Held from the first frame it was
+learned as a static pattern and divided out:
 ``test_a_tool_held_from_the_first_frame_is_not_divided_away_from_a_mark_under_it``.
 """
 
@@ -76,20 +77,23 @@ def test_a_tool_beside_the_path_loses_no_clear_frame_and_reports_no_hidden_mark(
     assert not np.any(np.isfinite(x) & (reach > 0.25 * spec.plates['stator'].width))
 
 
-@pytest.mark.parametrize('polarity', ['dark', 'bright'])
-def test_a_tool_held_from_the_first_frame_is_not_divided_away_from_a_mark_under_it(polarity):
+@pytest.mark.parametrize('polarity, texture', [('dark', 0.0), ('bright', 0.0), ('bright', 6.0)])
+def test_a_tool_held_from_the_first_frame_is_not_divided_away_from_a_mark_under_it(polarity,
+                                                                                   texture):
     # Held still from the first frame, the tool is in every priming frame: it was learned as a
     # static pattern (a transmission of 5 %) and divided out, and a mark partly under it, its
     # hidden part now looking like plate, was reported 2.0 and 6.2 px off (dark) or 6.5 px off
-    # (bright). What is opaque fixed in the image now hides the mark under it.
-    scene, spec = _scene(polarity, 0.0, 0.0, tool_from=0)
+    # (bright). What is opaque fixed in the image now hides the mark under it. On a textured
+    # plate (no static pattern learned: the texture moves) a bright mark lost every frame
+    # ('too dark': the centroid's lower envelope went down into the tool).
+    scene, spec = _scene(polarity, texture, 0.0, tool_from=0)
     result = track(list(scene.frames), scene.rois, 5e-6, spec.fps, exposure=spec.exposure)
     x = np.asarray(result.position_px['stator'], dtype=float)
     error = x - scene.truth['stator']
     reach = _reach(spec, 0.0, tool_from=0)
     clear = reach < -3.0 * spec.psf
     assert np.count_nonzero(~np.isfinite(x) & clear) <= 1
-    assert np.sqrt(np.mean(error[clear & np.isfinite(x)] ** 2)) < 0.03
+    assert np.sqrt(np.mean(error[clear & np.isfinite(x)] ** 2)) < (0.1 if texture else 0.03)
     assert not np.any(np.isfinite(x) & (reach > 0)), error[np.isfinite(x) & (reach > 0)]
 
 

@@ -182,7 +182,12 @@ class CentroidMarkTracker(CentroidPriming):
                 deficit, keep, lo, hi, gain, _ = smear
                 return self._finish(region, raw, deficit, keep, lo, hi, polarity, saturation,
                                     gain)
-        baseline = self._baseline.envelope(profile, polarity)
+        # Columns far beyond the plate on the other side (a dark tool in a bright mark's ROI)
+        # are no plate: the baseline is not fitted to them
+        middle = float(np.median(profile))
+        beyond = profile < 0.5 * middle if polarity == 'bright' else profile > 2.0 * middle
+        far = beyond if np.count_nonzero(beyond) else None
+        baseline = self._baseline.envelope(profile, polarity, far)
         if baseline.min() < cfg.min_baseline:
             return self._invalid('too dark')
         deficit = relative_deficit(profile, baseline, polarity)
@@ -196,6 +201,8 @@ class CentroidMarkTracker(CentroidPriming):
         off[max(lo - margin, 0):hi + margin + 1] = False
         refit = functools.partial(self._deficit, profile, polarity=polarity)  # on given columns
         off = disturbed(deficit, off, refit)
+        if far is not None:
+            off |= far
         for attempt in range(3):
             # Plain plate = everything outside the mark and a guard band; refit on it twice.
             keep = ~off

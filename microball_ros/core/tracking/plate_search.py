@@ -45,8 +45,8 @@ def match_plate(plate: PlateModel, d: np.ndarray, lo: int, hi: int, kernels, rea
     times the plate is ``g`` times its norm: noise peaks, as in a covered ROI, are not worth
     fitting), ``reach`` px apart, ordered by their score times ``shape_scores`` squared
     (something darker than the mark passing near it scores higher than the mark; not
-    ``shaped``: by their score), the best first; the best alone if there are none. Empty if
-    no kernel has a norm.
+    ``shaped``: the best first, then by their score); the best alone if there are none.
+    Empty if no kernel has a norm.
     """
     c = plate.center
     best = None
@@ -128,7 +128,7 @@ def plate_level(full: PlateModel | None, s: float, sign: float, kernel,
 
 def search_plate(plate: PlateModel, d: np.ndarray, prediction, kernel, motion, smeared: bool,
                  reach: float, shaped: bool = True) -> list[tuple[float, float, float]]:
-    """Return the (column, blur, curve) to fit the plate at: the best match first.
+    """Return the (column, blur, curve) to fit the plate at, in the order to try them.
 
     Gated around ``prediction`` (core.tracking.predict's; one kernel, the predicted
     ``kernel``) when there is one: that match. Else over the whole ROI with a bank of kernels

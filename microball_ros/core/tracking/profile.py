@@ -110,17 +110,23 @@ class Baseline:
         coef = np.linalg.lstsq(basis, profile[keep], rcond=None)[0]
         return self.basis[:, -(degree + 1):] @ coef
 
-    def envelope(self, profile: np.ndarray, polarity: str, iterations: int = 8) -> np.ndarray:
+    def envelope(self, profile: np.ndarray, polarity: str, far: np.ndarray | None = None,
+                 iterations: int = 8) -> np.ndarray:
         """Return a first baseline that the mark's dip cannot bend: iterative clipping.
 
         The profile is repeatedly replaced by the larger (for dark marks) of itself and the fit,
         so the fit climbs out of the dip onto the plain plate, however wide the blurred mark.
+        ``far``: columns that are no plate (the fit's own value stands in for them).
         """
         clipped = profile
+        if far is not None:
+            clipped = np.where(far, float(np.median(profile[~far])), profile)
         clip = np.maximum if polarity == 'dark' else np.minimum
         for _ in range(iterations):
             baseline = self.basis @ (self.pinv @ clipped)
             clipped = clip(profile, baseline)
+            if far is not None:
+                clipped[far] = baseline[far]
         return baseline
 
 
