@@ -395,10 +395,11 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     if not math.isfinite(center):
         return None if found is None else found[0]
     at = int(np.clip(round(center), 0, w - 1))
+    flanks = None  # the two flanks' own fits, when needed (fitted at most once)
     if expected is not None and (found is None or _apart(float(found[0][at]), expected)
                                  > DEPARTS):
-        lights = [fit for fit in _side_lights(ratio, u, keep, offset, order, sign, least,
-                                              within) if fit is not None]
+        flanks = _side_lights(ratio, u, keep, offset, order, sign, least, within)
+        lights = [fit for fit in flanks if fit is not None]
         if lights:
             nearest = min(lights, key=lambda fit: _apart(float(fit[0][at]), expected))
             if _apart(float(nearest[0][at]), expected) <= SIDES_APART and (
@@ -425,7 +426,7 @@ def light_level(ratio: np.ndarray, polarity: str | None, center: float = math.na
     # ... or from one flank alone, when the two flanks' lights differ grossly at the mark:
     # something dark over most of one (a tool reaching into the ROI) holds the median there
     # (the light at a bright mark was 0.8 for 1, or 'too dark').
-    left, right = _side_lights(ratio, u, keep, offset, order, sign, least, within)
+    left, right = flanks or _side_lights(ratio, u, keep, offset, order, sign, least, within)
     if left is None or right is None:
         return level
     apart = _apart(float(left[0][at]), float(right[0][at]))
