@@ -513,8 +513,8 @@ def build_parser():
                             'learned from the video)')
     track.add_argument('--black-level', type=_non_negative_float, default=0.0, metavar='DN',
                        help="the camera's dark offset, the value of a pixel that gets no "
-                            'light (default 0): a shadow passing over a mark is divided out '
-                            'above it')
+                            'light (default 0: estimated from the shadow): a shadow passing '
+                            'over a mark is divided out above it')
     track.add_argument('--method', choices=['auto', 'template'], default='auto',
                        help="'auto' (default): the mark's contrast centroid on a plain "
                             'plate; on a textured plate (found on the first frames) the plate '

@@ -199,9 +199,14 @@ def test_track_warns_that_a_lossy_videos_centre_errors_may_be_low(tmp_path, caps
                       'tested; README)'] if warned else [])
 
 
-@pytest.mark.parametrize('black', [0.0, 10.0])
-def test_track_says_how_many_frames_a_shadow_was_divided_out_of(tmp_path, capsys, black):
-    """A shadow sweeping over both marks: the frames are counted, the black level hinted."""
+@pytest.mark.parametrize('black, given', [(0.0, False), (10.0, True), (10.0, False)])
+def test_track_says_how_many_frames_a_shadow_was_divided_out_of(tmp_path, capsys, black,
+                                                                 given):
+    """A shadow sweeping over both marks: the frames are counted, the dark offset said.
+
+    The camera's dark offset, when not given, is said as estimated from the shadow
+    (core.tracking.shade.BlackLevel).
+    """
     from dataclasses import replace
 
     from tracking_scenes import PlateSpec, SceneSpec
@@ -218,12 +223,17 @@ def test_track_says_how_many_frames_a_shadow_was_divided_out_of(tmp_path, capsys
     argv = ['track', str(video), '--slider-roi', '100,55,280,70', '--stator-roi',
             '100,225,280,70', '--meters-per-pixel', '1e-6', '--fps', '25', '--exposure', '0.02',
             '--output', str(tmp_path / 'out.csv')]
-    assert main(argv + (['--black-level', '10'] if black else [])) == 0
+    assert main(argv + (['--black-level', '10'] if given else [])) == 0
     said = [line for line in capsys.readouterr().out.splitlines() if 'shadow' in line]
     assert len(said) == 1, said
     counts = said[0].split('divided out of ')[1].split(' frames')[0].split(' / ')
     assert all(30 <= int(count) <= 50 for count in counts), said  # 41: the band over an ROI
-    assert said[0].endswith('(--black-level DN)') is (black == 0)
+    assert said[0].endswith('--black-level DN)') is not given
+    if not given:
+        offset, sigma = map(float, said[0].split('from the shadow: ')[1].split(' DN')[0]
+                            .split(' +- '))
+        assert 0.0 < sigma < 1.5
+        assert abs(offset - black) < max(3.0 * sigma, 0.5), said
     table = np.genfromtxt(tmp_path / 'out.csv', delimiter=',', names=True)
     for name in ('slider', 'stator'):
         assert np.count_nonzero(np.isnan(table[f'{name}_position'])) <= 2

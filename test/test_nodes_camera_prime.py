@@ -130,7 +130,7 @@ def test_a_shadow_is_divided_out_as_track_does_and_counted(ros_context):
     """A shadow sweeping over both marks: the node publishes what track gives.
 
     Value for value (the shaded frames' sigmas widened), and /diagnostics counts the shaded
-    frames.
+    frames and says the camera's black level (8 DN, not given) the shadow told.
     """
     from dataclasses import replace
 
@@ -138,7 +138,7 @@ def test_a_shadow_is_divided_out_as_track_does_and_counted(ros_context):
                      level=150.0, amplitude=90.0, frequency=0.9, origin=240.0)
     spec = SceneSpec(plates={'slider': mark, 'stator': replace(mark, band=(200.0, 320.0),
                                                                 phase=1.0)},
-                     width=480, height=350, fps=30.0, exposure=0.02,
+                     width=480, height=350, fps=30.0, exposure=0.02, black=8.0,
                      shadow=(60, 100, 60.0, 420.0, 40.0, 8.0, 0.45, 20.0))
     scene = replace(render(spec, 100, seed=9), rois={'slider': (100, 55, 280, 70),
                                                      'stator': (100, 225, 280, 70)})
@@ -146,6 +146,8 @@ def test_a_shadow_is_divided_out_as_track_does_and_counted(ros_context):
     sent, times = _stamps(n)
     expected = track(scene.frames, scene.rois, SCALE, 30.0, times=times)
     assert all(20 <= count <= 45 for count in expected.shaded.values()), expected.shaded
+    black, sigma = expected.black_level
+    assert abs(black - 8.0) < max(3.0 * sigma, 1.0), expected.black_level
     tracker = _node(ros_context, scene, stamp_offset=STAMP_OFFSET, prime_timeout=600.0)
     harness = Harness(ros_context, tracker)
     try:
@@ -158,6 +160,8 @@ def test_a_shadow_is_divided_out_as_track_does_and_counted(ros_context):
         # /diagnostics is periodic: one after the last frame has the final counts
         counted = ', '.join(f'{name} {expected.shaded[name]}' for name in ('slider', 'stator'))
         camera.wait_for_status(lambda s: _values(s).get('shaded_frames') == counted, counted)
+        said = f'{black:.1f} +- {sigma:.1f}'
+        camera.wait_for_status(lambda s: _values(s).get('black_level_dn') == said, said)
     finally:
         harness.close()
 

@@ -29,7 +29,11 @@ def summary_lines(result: TrackResult, source: FrameSource, black_level: float) 
         line = (f"a shadow was divided out of {result.shaded.get('slider', 0)} / "
                 f"{result.shaded.get('stator', 0)} frames (slider / stator; its light taken "
                 f'beside each mark, their standard errors times {SHADED_SIGMA:g})')
-        if black_level == 0:
+        black, sigma = result.black_level
+        if black_level == 0 and math.isfinite(black):
+            line += (f"; the camera's dark offset, from the shadow: {black:.1f} +- {sigma:.1f} "
+                     'DN (if known, give it: --black-level DN)')
+        elif black_level == 0:
             line += ': if the camera has a dark offset, give it (--black-level DN)'
         lines.append(line)
     if result.mosaic:

@@ -87,7 +87,8 @@ PARAMS = {
     'polarity': Param('auto', "marks darker or brighter than their plate: 'auto' (learned), "
                               "'dark' or 'bright'", read_only=True),
     'black_level': Param(0.0, "the camera's dark offset, DN (a pixel that gets no light): a "
-                              'shadow passing over a mark is divided out above it', 0.0, 1.0e6,
+                              'shadow passing over a mark is divided out above it (0: '
+                              'estimated from the shadow)', 0.0, 1.0e6,
                          read_only=True),
     'publish_debug_image': Param(False, 'publish tracking/debug_image with the marks drawn'),
     'frame_id': Param('camera', 'frame_id for positions from video_path', read_only=True),
@@ -159,7 +160,8 @@ class TrackerDiagnostics(NodeDiagnostics):
 
     Once primed, 'centre_sigma_px' too: each mark's centre_sigma_px ('slider 0.0500, ...'),
     and once a passing shadow was divided out of a frame (core.tracking.shade),
-    'shaded_frames': how many frames per mark ('slider 41, stator 0').
+    'shaded_frames': how many frames per mark ('slider 41, stator 0'), and once the shadows
+    told the camera's black level (not given), 'black_level_dn' ('6.1 +- 0.3').
 
     While the node learns, the status message says so; a priming cut short by a pause of the
     images is a warning for one period (the 'priming' value keeps saying it).
@@ -169,6 +171,7 @@ class TrackerDiagnostics(NodeDiagnostics):
         self.priming = ''
         self.centres = ''  # once primed: each mark's centre_sigma_px
         self.shaded = ''  # the frames per mark a passing shadow was divided out of, if any
+        self.black = ''  # the camera's black level estimated from the shadows, if any
         self._warning = ''
         super().__init__(node, **kwargs)
 
@@ -188,6 +191,8 @@ class TrackerDiagnostics(NodeDiagnostics):
             status.values.append(KeyValue(key='centre_sigma_px', value=self.centres))
         if self.shaded:
             status.values.append(KeyValue(key='shaded_frames', value=self.shaded))
+        if self.black:
+            status.values.append(KeyValue(key='black_level_dn', value=self.black))
         if self._warning:
             status.level = max(status.level, DiagnosticStatus.WARN)
             status.message = (self._warning if status.message == 'ok'
@@ -356,6 +361,9 @@ class CameraTracker(Node):
         if any(self._tracker.shaded.values()):
             self.diagnostics.shaded = ', '.join(f'{name} {count}'
                                                 for name, count in self._tracker.shaded.items())
+        black = self._tracker.black
+        if black.value is not None:
+            self.diagnostics.black = f'{black.value:.1f} +- {black.sigma:.1f}'
         self._publish(result, frame, conversions.seconds_to_stamp(result.time), frame_id)
 
     def _publish(self, result, frame, stamp, frame_id):

@@ -54,10 +54,13 @@ class MarkGains:
         """Drop the learned scatter (no guard) and stop logging."""
         self.spread, self._log = math.inf, None
 
-    def judge(self, gain: float) -> float | None:
+    def judge(self, gain: float, slack: float = 0.0) -> float | None:
         """Return the reference to judge ``gain`` against, or None if the guard refuses it.
 
         A gain kept (not refused) joins the recent ones. The reference is 1 until 3 are known.
+        ``slack``: how far this frame's gain may be off for a known cause (relative, added to
+        the guard's tolerance): a shadow's light over a camera's black level not given
+        (core.tracking.shade.gain_slack).
         """
         if len(self._recent) < 3:
             self._recent.append(gain)
@@ -65,7 +68,7 @@ class MarkGains:
         reference = statistics.median(self._recent)  # as np.median, faster
         if self._log is not None:
             self._log.append(gain / reference - 1.0)
-        if abs(gain / reference - 1.0) > max(SPREADS * self.spread, FLOOR):
+        if abs(gain / reference - 1.0) > max(SPREADS * self.spread, FLOOR) + slack:
             self._off.append(gain)
             if len(self._off) < LASTING:
                 return None

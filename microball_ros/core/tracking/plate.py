@@ -271,11 +271,12 @@ class PlateMarkTracker(PlatePriming):
             valid &= ~(np.convolve(other, np.ones(2 * OPPOSITE_GUARD + 1), 'same') > 0)
             window[~valid] = 0.0
         tolerance = REACQUIRE_MATCH if lost else cfg.match_tolerance + 0.5
+        noise = self._noise()
         # Restarted from short kernels if poor; then, on a plain plate only, fitted without
         # what passes beside the mark (a whole-frame smear on a speckle often fits that poorly:
         # speckle_full's stator went 0.099 -> 0.106 px RMS).
         fit = plate.fit_frame(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0,
-                              tolerance * self._rms,
+                              tolerance * noise,
                               RESTART_BLURS if restart else RESTART_BLURS[:1],
                               self._rms if self.texture < TEXTURE_SCORE else None)
         if fit is None:
@@ -292,7 +293,7 @@ class PlateMarkTracker(PlatePriming):
         moved = 4.0 + SMEAR_MOVE * max(blur, found[1]) if smeared else 4.0
         if abs(position - start) > moved or not math.isfinite(position):
             return ('no match', 0.0, peak)
-        if lost and rms > REACQUIRE_MATCH * self._rms:  # after a loss: maybe a false match
+        if lost and rms > REACQUIRE_MATCH * noise:  # after a loss: maybe a false match
             return ('no match', 0.0, peak)
         if first < 1 or last > w - 2:
             return ('mark at the ROI edge', 0.0, peak)
@@ -308,7 +309,7 @@ class PlateMarkTracker(PlatePriming):
         # free_kernel), kept if it puts the mark near where the quadratic fit did. Not while
         # priming: what is learned from the priming frames stays as it was (one frame of
         # textured_fps15's priming so kept moved its stator's RMS 0.106 -> 0.110 px).
-        poor = rms > cfg.match_tolerance * self._rms and not self.priming
+        poor = rms > cfg.match_tolerance * noise and not self.priming
         gains = copy.deepcopy(self._gains) if poor else None  # as before this frame's judging
         judged = self._judge(gain, rms, sigma_gain, peak)
         kernel: tuple[float, float] | None = (blur, curve)
@@ -345,13 +346,25 @@ class PlateMarkTracker(PlatePriming):
         The gain's own noise (``sigma_gain``) widens the tolerance (a faint mark's is noisy).
         """
         cfg = self.config
-        reference = self._gains.judge(gain)
+        reference = self._gains.judge(gain, 0.0 if self.shadow is None else
+                                      self.shadow.gain_slack)
         if reference is None:
             return None
         snr = peak * math.sqrt(cfg.smoothing_px) / max(rms, 1e-12)
         tolerance = math.hypot(cfg.area_tolerance, 3.0 * sigma_gain / reference)
-        quality, reason = cfg.quality(snr, gain / reference, tolerance, rms / self._rms)
+        quality, reason = cfg.quality(snr, gain / reference, tolerance, rms / self._noise())
         return quality, reason, snr
+
+    def _noise(self) -> float:
+        """Return the residual a fit of this frame may have from noise alone.
+
+        Priming's residual; in a frame divided by a passing shadow's light (``shadow``, set
+        by core.tracking.tracker), with that light's own error added (p12's stator, 0.0035
+        and 0.0033: its fits of 0.0061 were refused after a loss, 1.4 times priming's at most).
+        """
+        if self.shadow is None:
+            return self._rms
+        return math.hypot(self._rms, self.shadow.error)
 
     def _start_gathering(self, frame) -> None:
         """Note that a still mark moved; gather frames if ``GATHER_BYTES`` holds them."""

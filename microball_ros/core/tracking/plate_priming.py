@@ -33,6 +33,7 @@ from microball_ros.core.tracking.priming import (
 from microball_ros.core.tracking.profile import glint_columns
 from microball_ros.core.tracking.results import MarkMeasurement, with_centre
 from microball_ros.core.tracking.rows_guard import ROW_FRACTION, ROW_MARGIN, RowsGuard
+from microball_ros.core.tracking.shade import ShadowNote
 from microball_ros.core.tracking.small import SmallMotion, moves_little
 from microball_ros.core.tracking.smear import (
     PeriodicMotion,
@@ -78,6 +79,8 @@ class PlatePriming:
         self._lights: deque[float] = deque(maxlen=LIGHT_MEMORY)
         self._light = math.nan  # ... in the frame being measured
         self._motion: PeriodicMotion | None = None  # a long smear's motion, from priming
+        # The shadow this frame was divided by (core.tracking.tracker sets it), or None
+        self.shadow: ShadowNote | None = None
         self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
         self._refused = False  # a long smear whose plate could not be learned: all NaN
         self._clipped: np.ndarray | None = None  # this frame's glint columns

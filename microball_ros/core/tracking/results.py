@@ -76,7 +76,9 @@ class TrackResult:
     ``centre_sigma_px`` the part of ``sigma_px`` that is one error in every frame: where the
     mark's centre lies on a textured plate (px; 0 on a plain plate, NaN if not estimated);
     ``mosaic`` whether the frames were a raw colour mosaic, smoothed (core.tracking.mosaic);
-    ``shaded`` per mark, the frames a passing shadow was divided out of (core.tracking.shade).
+    ``shaded`` per mark, the frames a passing shadow was divided out of (core.tracking.shade);
+    ``black_level`` the camera's black level (DN) estimated from the shadows and its standard
+    error (NaN, NaN when given, or when no shadow told it).
     """
 
     time: np.ndarray
@@ -93,6 +95,7 @@ class TrackResult:
     centre_sigma_px: dict[str, float] = field(default_factory=dict)
     mosaic: bool = False
     shaded: dict[str, int] = field(default_factory=dict)
+    black_level: tuple[float, float] = (math.nan, math.nan)
 
     def to_columns(self) -> dict[str, np.ndarray]:
         """Return the position-CSV columns (docs/design.md section 5) as an ordered dict.

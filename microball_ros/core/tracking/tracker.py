@@ -34,7 +34,7 @@ from microball_ros.core.tracking.mark import MarkTracker
 from microball_ros.core.tracking.mosaic import is_mosaic, unmosaic
 from microball_ros.core.tracking.profile import saturation_level
 from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
-from microball_ros.core.tracking.shade import Shade
+from microball_ros.core.tracking.shade import BlackLevel, Shade, ShadowNote, gain_slack
 
 # A frame divided by a passing shadow's light: its standard errors times this. Measured on
 # rendered scenes (test_tracking_shade.py, three seeds): such frames' errors were 1.2-1.3 times
@@ -77,6 +77,7 @@ class Tracker:
         self.mosaic = False  # the frames are a raw colour mosaic (core.tracking.mosaic)
         self.shades: dict[str, Shade] = {}  # per mark, a passing shadow's light (priming)
         self.shaded = dict.fromkeys(self.marks, 0)  # per mark, frames a shadow was divided out of
+        self.black = BlackLevel()  # the camera's, from the shadows (unless config gives it)
 
     def frame_time(self, index: int) -> float:
         """Return the mid-exposure time (s) of frame ``index``."""
@@ -123,45 +124,78 @@ class Tracker:
         """Return mark ``name``'s measurement in ``frame``, with a passing shadow divided out.
 
         The light taken from beside the mark adds its own noise: a frame it was divided by
-        has its standard error times ``SHADED_SIGMA``.
+        has its standard error times ``SHADED_SIGMA``, and the mark's tracker is told of the
+        shadow (``shadow``, a ShadowNote: its fit is judged with the light's error). The
+        mark's contrast in and out of the shadows gives the camera's black level
+        (``black``, core.tracking.shade.BlackLevel) when the config does not.
         """
-        shaded = self._shaded(name, frame)
+        shaded, light, black = self._shaded(name, frame)
+        note = None
+        if light is not None:
+            first, stop = self.shades[name].rows
+            known = self.config.black_level > 0.0 or self.black.value is not None
+            note = ShadowNote(gain_slack(float(light[first:stop].min()), known),
+                              self.shades[name].error)
+        if hasattr(mark, 'shadow'):
+            mark.shadow = note
         found = mark.measure(shaded)
-        if shaded is frame:
+        if light is None:
+            if found.valid:
+                self.black.lit(name, found.contrast)
             return found
         self.shaded[name] += 1
         if not found.valid:
             return found
+        self._black_sample(name, found, light, black)
         return dataclasses.replace(found, sigma_px=found.sigma_px * SHADED_SIGMA)
 
-    def _shaded(self, name: str, frame: np.ndarray) -> np.ndarray:
+    def _black_sample(self, name: str, found: MarkMeasurement, light: np.ndarray,
+                      black: float) -> None:
+        """Give ``black`` the mark's contrast under a shadow's ``light`` (ROI, as read)."""
+        if self.config.black_level > 0.0 or not math.isfinite(found.extent_px):
+            return
+        shade = self.shades[name]
+        first, stop = shade.rows
+        centre = found.position_px - self.marks[name].roi[0]
+        lo = int(math.floor(centre - found.extent_px / 2.0))
+        hi = int(math.ceil(centre + found.extent_px / 2.0)) + 1
+        if lo < 0 or hi > light.shape[1]:
+            return
+        self.black.shaded(name, found.contrast, light[first:stop, lo:hi], shade.level(lo, hi),
+                          black)
+
+    def _shaded(self, name: str,
+                frame: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, float]:
         """Return ``frame`` with mark ``name``'s ROI divided by a passing shadow's light.
 
-        The frame itself when no shadow is on the ROI (core.tracking.shade), or when a column
-        of the mark's rows is saturated there (the mark's tracker refuses that frame itself).
-        The light scales what is above the camera's ``black_level``.
+        Also the light as read (None when not divided) and the black level the light was
+        taken above: ``config.black_level``, else ``black``'s estimate, else 0. The frame
+        itself when no shadow is on the ROI (core.tracking.shade), or when a column of the
+        mark's rows is saturated there (the mark's tracker refuses that frame itself).
         """
+        black = self.config.black_level
+        if black == 0.0:
+            black = self.black.value or 0.0
         shade = self.shades.get(name)
         if shade is None:
-            return frame
+            return frame, None, black
         roi = self.marks[name].roi
         region = roi_region(frame, roi, name)
-        light = shade.light(region)
-        if light is None:
-            return frame
+        read = shade.light(region)
+        if read is None:
+            return frame, None, black
         saturation = saturation_level(frame.dtype, self.config.saturation_level)
         first, stop = shade.rows
         if saturation is not None and float(
                 region[first:stop].mean(axis=0).max()) >= saturation:
-            return frame
-        black = self.config.black_level
-        light = shade.above_black(light, black)
+            return frame, None, black
+        light = shade.above_black(read, black)
         if light.min() <= 0.0:
-            return frame  # darker than the black level given: that is wrong, measure as is
+            return frame, None, black  # darker than the black level: that is wrong, as is
         shaded = frame.astype(np.float64)
         x, y, w, h = roi
         shaded[y:y + h, x:x + w] = (region - black) / light + black
-        return shaded
+        return shaded, read, black
 
 
 def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
@@ -235,4 +269,6 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         exposure=tracker.exposure, names=names,
         polarity={n: m.polarity for n, m in tracker.marks.items() if m.polarity},
         centre_sigma_px={n: m.centre_sigma_px for n, m in tracker.marks.items()},
-        mosaic=tracker.mosaic, shaded=dict(tracker.shaded))
+        mosaic=tracker.mosaic, shaded=dict(tracker.shaded),
+        black_level=(math.nan, math.nan) if tracker.black.value is None else (
+            tracker.black.value, tracker.black.sigma))
