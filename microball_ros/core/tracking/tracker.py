@@ -88,10 +88,7 @@ class Tracker:
 
         Batch tracking primes on the first ``config.prime_frames`` frames and then tracks
         them again, so the first frames get the learned mark too. Frames that are a raw
-        colour mosaic are smoothed from now on (``mosaic``). A mark whose ROI a shadow passed
-        over during priming (core.tracking.shade) is learned again from the priming frames
-        divided by the shadow's light (above ``config.black_level``: the shadows have not
-        told it yet).
+        colour mosaic are smoothed from now on (``mosaic``).
         """
         grey = [to_gray(frame) for frame in frames]
         self.mosaic = is_mosaic(grey)
@@ -106,10 +103,6 @@ class Tracker:
                 shade.prime([roi_region(frame, mark.roi, name) for frame in grey])
                 if shade.enabled:
                     self.shades[name] = shade
-                    # A shadow over priming frames: the mark learned again from them divided
-                    divided = [self._shaded(name, frame)[0] for frame in grey]
-                    if any(each is not frame for each, frame in zip(divided, grey, strict=True)):
-                        mark.prime(divided)
 
     def process(self, frame: npt.ArrayLike, time: float | None = None) -> TrackedFrame:
         """Track all marks in the next frame and return a TrackedFrame.
