@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from microball_ros.core.tracking.profile import median_and_error
+
 ASYMMETRY_FLOOR = 0.05  # px: an offset under this is not told from a symmetric mark's 0
 ASYMMETRY_SIGMAS = 4.0  # ... nor one under this many of its standard errors
 FLANK = 12  # px of plate fitted per row on each side of the mark's window
@@ -84,9 +86,7 @@ def area_offset(regions, positions, extents, polarity: str, pad: int) -> tuple[f
                         if (found := contrast_centroid(region, lo, hi, sign, rows)) is not None])
     if offsets.size < MIN_FRAMES:
         return 0.0, 0.0
-    offset = float(np.median(offsets))
-    spread = 1.4826 * float(np.median(np.abs(offsets - offset)))
-    sigma = 1.2533 * spread / math.sqrt(offsets.size)  # the median's standard error
+    offset, sigma = median_and_error(offsets)  # the median and its standard error
     if abs(offset) <= max(ASYMMETRY_FLOOR, ASYMMETRY_SIGMAS * sigma):
         return 0.0, 0.0
     return offset, sigma

@@ -40,6 +40,17 @@ DISTURBED_RUN, DISTURBED_SPREADS, LOCAL, CLOSE = 4, 6.0, 0.25, (3, 8)
 GLINT_HALO = 3  # px: a glint's columns are its saturated ones and this far beside them
 
 
+def median_and_error(values) -> tuple[float, float]:
+    """Return the median of ``values`` and its standard error (robust).
+
+    The error is 1.2533 (a median's, of normal data) times the MAD's sigma over sqrt(n).
+    """
+    values = np.asarray(values, dtype=float)
+    middle = float(np.median(values))
+    spread = MAD_TO_SIGMA * float(np.median(np.abs(values - middle)))
+    return middle, 1.2533 * spread / math.sqrt(values.size)
+
+
 def column_profile(region: np.ndarray) -> np.ndarray:
     """Return the mean of the ROI's rows (float64, one value per column)."""
     if region.dtype in (np.uint8, np.float32):

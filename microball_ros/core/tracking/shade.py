@@ -50,6 +50,8 @@ from scipy.ndimage import median_filter
 from scipy.optimize import brentq
 from scipy.signal import savgol_filter
 
+from microball_ros.core.tracking.profile import median_and_error
+
 SIDE_ROWS = 8  # rows used on each side of the mark, at most
 GAP_ROWS = 2  # rows left between the mark's rows and the side rows
 MIN_SIDE = 3  # a side with fewer rows than this is not used (both sides are needed)
@@ -150,11 +152,8 @@ class BlackLevel:
             return
         self._samples.append(level * float(brentq(excess, low, high, xtol=1e-5)))
         if len(self._samples) >= BLACK_SAMPLES:
-            samples = np.array(self._samples)
-            middle = float(np.median(samples))
-            spread = 1.4826 * float(np.median(np.abs(samples - middle)))
+            middle, self.sigma = median_and_error(self._samples)
             self.value = max(middle, 0.0)
-            self.sigma = 1.2533 * spread / math.sqrt(samples.size)
 
 
 def gain_slack(least: float, black_known: bool) -> float:
