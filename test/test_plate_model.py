@@ -11,8 +11,13 @@ import pytest
 from scipy.special import erf
 
 from microball_ros.core.tracking.plate_model import (
+    _ENDS,
     TURNS_FROM,
     PlateModel,
+    _by_ends,
+    _frequencies,
+    _kernel_parts,
+    _kernel_parts_by_segments,
     _sinc_parts,
     kernel_derivatives,
     kernel_spectra,
@@ -208,3 +213,26 @@ def test_fit_clear_fits_the_mark_without_a_particle_beside_it():
     assert fit is not None
     clear = model.fit_clear(over, valid, fit, 30.0, 0.002)
     assert clear is None or abs(clear[3] / 0.8 - 1.0) > 0.3
+
+
+def test_spectra_from_the_segments_ends_are_those_from_their_mids():
+    """``_kernel_parts`` from the ends (one exponential per end) and from mids and widths.
+
+    Both ways, shifted, agree to rounding: the spectrum to 1e-13, its derivatives to 1e-9 of
+    their largest; a segment shorter than ``ENDS_FROM`` over the lowest frequency (a
+    turnaround: 3, 18) goes by the mids.
+    """
+    for size in (240, 1080):
+        k = 2 * np.pi * np.fft.rfftfreq(size)
+        mik, k_safe = _frequencies(k)
+        for blur, curve in [(12.0, 3.0), (55.0, -8.0), (2.0, 0.1), (30.0, 9.0)]:
+            ends = blur * _ENDS[0] + curve * _ENDS[1]
+            assert _by_ends(k, np.diff(ends))
+            for shift in (0.0, -2.7):
+                by_ends = _kernel_parts(k, mik, k_safe, blur, curve, shift)
+                by_mids = _kernel_parts_by_segments(k, mik, k_safe, blur, curve) * np.exp(
+                    mik * shift)
+                assert np.allclose(by_ends[:2], by_mids[:2], rtol=0, atol=1e-13)
+                scale = np.abs(by_mids[2:]).max(axis=1, keepdims=True)
+                assert np.all(np.abs(by_ends[2:] - by_mids[2:]) <= 1e-9 * scale)
+        assert not _by_ends(k, np.diff(3.0 * _ENDS[0] + 18.0 * _ENDS[1]))

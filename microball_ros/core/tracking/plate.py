@@ -204,6 +204,10 @@ class PlateMarkTracker(PlatePriming):
                                   self.exposure_fraction)
         gated = prediction if prediction is not None and math.isfinite(prediction.spread) \
             else None
+        self._predicted_blur = math.nan
+        if kernel is not None and gated is not None:  # its blur as the fits have had it
+            self._predicted_blur = kernel[0]
+            kernel = (kernel[0] * self._blur_scale.scale, kernel[1])
         if gated is not None:
             blur = kernel[0] if kernel is not None else 0.0
             d = self._deficit(profile, gated.column, self._span(blur, kernel), kernel)
@@ -332,6 +336,8 @@ class PlateMarkTracker(PlatePriming):
             return (reason, quality, peak)
         # A frame no quadratic path fits is no guide to the next: predicted as after a loss
         self._predictor.add(position if kernel is not None else math.nan)
+        if kernel is not None:
+            self._blur_scale.add(self._predicted_blur, blur)
         if math.isfinite(self._light):
             self._lights.append(self._light)
         self._kernel = kernel

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from microball_ros.core.tracking.small_linalg import solve
 from microball_ros.core.tracking.template import SEGMENTS, kernel_spectrum, tukey
 
 UPSAMPLE = 8  # the plate model's grid: 1/8 px
@@ -28,12 +29,22 @@ _WIDTH_L = np.diff(_U)
 _WIDTH_Q = np.diff(_U2)
 
 
+# The segments' ends, as the mids (both less the mean mid): the kernel is zero-mean
+_ENDS = np.array([_U - float(np.mean((_U[1:] + _U[:-1]) / 2.0)),
+                  _U2 - float(np.mean((_U2[1:] + _U2[:-1]) / 2.0))])
+_WIDTHS = np.array([_WIDTH_L, _WIDTH_Q])
+ENDS_FROM = 1e-3  # _by_ends: its rounding error over the spectrum, at most 1e-16 / this
+
+
 _PHASE_WEIGHTS = np.array([np.full(SEGMENTS, 1.0), _MID_L, _MID_Q]) / SEGMENTS
 _SINC_WEIGHTS = np.array([0.5 * _WIDTH_L, 0.5 * _WIDTH_Q]) / SEGMENTS
 _TINY = 1e-100  # stands for 0 in a segment's half-width or at k = 0: sin(z) / z is then 1
 _RANGE = np.arange(4096, dtype=float)  # _turns' fine and coarse steps (k.size up to 16 M)
 TURNS_FROM = 256  # _turns: from this many frequencies, as coarse times fine turns
 SERIES_BELOW = 1e-3  # _sinc_parts: z this small by the Taylor series
+
+
+_IDENTITY = np.eye(5)
 
 
 def _frequencies(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,13 +108,41 @@ def _sinc_parts(half: np.ndarray, k: np.ndarray, k_safe: np.ndarray, slope: bool
     return sinc, d_sinc
 
 
-def _kernel_parts(k, mik, k_safe, blur, curve):
+def _by_ends(k, widths) -> bool:
+    """Return True if a kernel's spectrum is computed from its segments' ends (``_ends``).
+
+    A segment's part of the spectrum is ``(e_s - e_s+1) / (i k w_s)``, ``e_j = exp(-i k
+    x_j)`` at its ends ``x_j``, ``w_s`` its length: one complex exponential per end instead of
+    a phase and a sine per segment (the search's and light's smears, and the fit's steps, are
+    most of a frame's time). It loses ``1e-16 / (k w_s)`` to rounding: a segment shorter than
+    ``ENDS_FROM`` over the lowest frequency is computed from its mid and half-width instead.
+    """
+    return k.size > 1 and float(np.abs(widths).min()) * float(k[1]) >= ENDS_FROM
+
+
+def _kernel_parts(k, mik, k_safe, blur, curve, shift=0.0):
     """Return rows: the kernel's spectrum, its d/dx, d/dblur, d/dcurve (``kernel_derivatives``).
 
-    ``mik``, ``k_safe``: from ``_frequencies(k)``.
+    ``mik``, ``k_safe``: from ``_frequencies(k)``; ``shift``: the kernel moved that far (px).
     """
     if blur == 0.0:
-        return _kernel_parts_at_rest(k, mik, curve)
+        return _shifted(_kernel_parts_at_rest(k, mik, curve), mik, shift)
+    ends = blur * _ENDS[0] + curve * _ENDS[1]
+    widths = ends[1:] - ends[:-1]
+    if _by_ends(k, widths):
+        return _kernel_parts_by_ends(k, mik, k_safe, ends + shift, widths)
+    return _shifted(_kernel_parts_by_segments(k, mik, k_safe, blur, curve), mik, shift)
+
+
+def _shifted(parts, mik, shift):
+    """Return ``parts`` of a kernel moved by ``shift`` px (in place)."""
+    if shift != 0.0:
+        parts *= np.exp(mik * shift)
+    return parts
+
+
+def _kernel_parts_by_segments(k, mik, k_safe, blur, curve):
+    """Return ``_kernel_parts`` from the segments' mids and half-widths (no ``_by_ends``)."""
     mid = blur * _MID_L + curve * _MID_Q
     half = 0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q)
     half[np.abs(half) < _TINY] = _TINY
@@ -120,6 +159,37 @@ def _kernel_parts(k, mik, k_safe, blur, curve):
     parts[2:] += width
     parts[0] = parts[1]
     parts[1] *= mik
+    return parts
+
+
+def _kernel_parts_by_ends(k, mik, k_safe, ends, widths):
+    """Return ``_kernel_parts`` from the segments' ``ends`` and ``widths`` (``_by_ends``).
+
+    With ``T_s = (e_s - e_s+1) / (i k w_s)`` (``e_j = exp(-i k x_j)``), the spectrum is the
+    mean of ``T_s``; ``dT_s/dx_s = (T_s - e_s) / w_s``, ``dT_s/dx_s+1 = (e_s+1 - T_s) / w_s``,
+    and ``dx_j/dblur``, ``dx_j/dcurve`` are the ends' rows of ``_ENDS``. Every part is then a
+    sum over the ends' exponentials, some over ``i k``: two small matrix products.
+    """
+    inv = 1.0 / widths
+    over = np.zeros((3, SEGMENTS + 1))  # times e, over i k: the spectrum and the T_s parts
+    over[0, :-1] = inv
+    over[0, 1:] -= inv
+    scaled = _WIDTHS * (inv * inv)
+    over[1:, :-1] -= scaled
+    over[1:, 1:] += scaled
+    direct = np.zeros((2, SEGMENTS + 1))  # times e: the e_j parts
+    direct[:, 1:] = inv
+    direct[:, :-1] -= inv
+    direct *= _ENDS / SEGMENTS
+    turns = _turns(-ends, k)
+    parts = np.empty((4, k.size), complex)
+    np.matmul(over, turns, out=parts[1:])
+    parts[1:] /= (1j * SEGMENTS) * k_safe
+    parts[2:] += direct @ turns
+    parts[0] = parts[1]
+    parts[0, 0] = 1.0  # k = 0
+    parts[2:, 0] = 0.0
+    parts[1] = parts[0] * mik
     return parts
 
 
@@ -179,6 +249,18 @@ def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
 
 def _smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
     """Return the spectra of kernels (rows, as ``kernel_spectra``); ``_frequencies(k)``."""
+    ends = np.outer(blurs, _ENDS[0])
+    ends += np.outer(curves, _ENDS[1])
+    ends += np.asarray(shifts, dtype=float)[:, None]
+    widths = ends[:, 1:] - ends[:, :-1]
+    if _by_ends(k, widths):
+        turns = _turns(-ends, k)
+        spectra = turns[:, :-1] - turns[:, 1:]
+        spectra /= widths[:, :, None]
+        spectra = spectra.sum(axis=1)
+        spectra /= (1j * SEGMENTS) * k_safe
+        spectra[:, 0] = 1.0  # k = 0
+        return spectra
     mid = np.outer(blurs, _MID_L)
     mid += np.outer(curves, _MID_Q)
     mid += np.asarray(shifts, dtype=float)[:, None]
@@ -351,8 +433,8 @@ class PlateModel:
         jacobian = np.empty((5, count))
         jacobian[0] = 1.0
         for _ in range(iterations):
-            kernel = _kernel_parts(self.k, mik, k_safe, blur, curve)
-            kernel *= self.spectrum * np.exp(mik * delta)
+            kernel = _kernel_parts(self.k, mik, k_safe, blur, curve, delta)
+            kernel *= self.spectrum
             model = np.fft.irfft(kernel, self.size, axis=1)[:, used]
             m = model[0]
             m_mean = float(m.sum()) / count  # as m.mean(), without its overhead
@@ -371,9 +453,8 @@ class PlateModel:
                 lowest = result
             damped = normal.copy()
             damped.flat[::6] += 1e-9 * (damped.flat[::6] + 1e-12)
-            try:
-                step = np.linalg.solve(damped, jacobian @ residual)
-            except np.linalg.LinAlgError:
+            step = solve(damped, jacobian @ residual)
+            if step is None:
                 return None
             step_delta, step_blur, step_curve = (min(max(v, -4.0), 4.0)  # as np.clip
                                                  for v in step[2:].tolist())
@@ -388,9 +469,8 @@ class PlateModel:
             delta, blur, curve = result[0]
         _, gain, offset, cost, normal = result
         variance = cost / max(count - 5, 1)
-        try:
-            covariance = np.linalg.inv(normal)
-        except np.linalg.LinAlgError:
+        covariance = solve(normal, _IDENTITY)
+        if covariance is None:
             return None
         sigma = math.sqrt(max(float(covariance[2, 2]) * variance, 0.0))
         sigma_gain = math.sqrt(max(float(covariance[1, 1]) * variance, 0.0))

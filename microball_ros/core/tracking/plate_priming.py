@@ -36,6 +36,7 @@ from microball_ros.core.tracking.rows_guard import ROW_FRACTION, ROW_MARGIN, Row
 from microball_ros.core.tracking.shade import ShadowNote
 from microball_ros.core.tracking.small import SmallMotion, moves_little
 from microball_ros.core.tracking.smear import (
+    BlurScale,
     PeriodicMotion,
     fit_motion,
     least_smeared,
@@ -74,6 +75,8 @@ class PlatePriming:
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
         self.priming = False  # the priming frames are being tracked (``_track_priming``)
         self._predictor = MotionPredictor()
+        self._blur_scale = BlurScale()  # the predicted kernels' blur against the fits'
+        self._predicted_blur = math.nan  # this frame's, unscaled
         self._gains = MarkGains(int(self.config.area_history))  # and the jump guard
         # The light at the mark in the last frames it was found in (plate._deficit's)
         self._lights: deque[float] = deque(maxlen=LIGHT_MEMORY)
@@ -161,6 +164,7 @@ class PlatePriming:
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
         self._predictor.reset()
+        self._blur_scale.reset()
         self._gains.reset()
         self._lights.clear()
         self._moved = False

@@ -19,6 +19,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from microball_ros.core.tracking.small_linalg import lstsq
+
 WARM_LEAST = 7  # positions to predict from with a known frequency (5 coefficients)
 WARM_FLOOR = 0.25  # px: its spread at least (a gate of 6 spreads + 3 px: 4.5 px at least)
 
@@ -82,7 +84,7 @@ class MotionPredictor:
         design[:, :p] = windows[:, -2::-1]
         design[:, p] = 1.0
         goal = windows[:, -1]
-        coef, *_ = np.linalg.lstsq(design, goal, rcond=None)
+        coef = lstsq(design, goal)
         residual = goal - design @ coef
         spread = math.sqrt(float(residual @ residual) / max(len(goal) - p - 1, 1))
         return coef, spread

@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import binary_dilation, label
 
+from microball_ros.core.tracking.small_linalg import lstsq
+
 LIGHT_ORDER = 2  # light_level: the light per frame over the ROI, a polynomial of this degree
 LIGHT_FLANK = 48.0  # light_level's flank while tracking: px on either side of the mark
 ONE_SIDE = 24  # light_level: a flank this long alone gives the light's slope (an ROI's end)
@@ -118,7 +120,7 @@ class Baseline:
         count = int(np.count_nonzero(keep))
         degree = min(self.basis.shape[1] - 1, max(count // 12 - 1, 0))
         basis = self.basis[keep, -(degree + 1):]
-        coef = np.linalg.lstsq(basis, profile[keep], rcond=None)[0]
+        coef = lstsq(basis, profile[keep])
         return self.basis[:, -(degree + 1):] @ coef
 
     def envelope(self, profile: np.ndarray, polarity: str, far: np.ndarray | None = None,
@@ -267,7 +269,28 @@ def polyfit(x: np.ndarray, y: np.ndarray, order: int) -> np.ndarray:
     lhs = np.vander(x, order + 1)
     scale = np.sqrt((lhs * lhs).sum(axis=0))
     lhs /= scale
-    return np.linalg.lstsq(lhs, y, rcond=x.size * _EPS)[0] / scale
+    return lstsq(lhs, y, x.size * _EPS) / scale
+
+
+def _fitted(u: np.ndarray, y: np.ndarray, keep: np.ndarray, order: int) -> np.ndarray:
+    """Return ``np.polyval(polyfit(u[keep], y[keep], order), u)``; a line in closed form.
+
+    A constant or a line (the light across a mark, every frame) is the least-squares line
+    through the kept columns' means, to rounding as ``polyfit``'s SVD has it, at a fraction of
+    its cost; a higher order, or columns all at one ``u``, goes to ``polyfit``.
+    """
+    x, values = u[keep], y[keep]
+    mean = float(values.sum()) / values.size
+    if order == 0:
+        return np.full(u.size, mean)
+    if order == 1:
+        x_mean = float(x.sum()) / x.size
+        centred = x - x_mean
+        spread = float(centred @ centred)
+        if spread > 0:
+            slope = float(centred @ values) / spread
+            return (u - x_mean) * slope + mean
+    return np.polyval(polyfit(x, values, order), u)
 
 
 def deficit_noise(deficit: np.ndarray, keep: np.ndarray) -> float:
@@ -280,7 +303,7 @@ def deficit_noise(deficit: np.ndarray, keep: np.ndarray) -> float:
     second = second[keep[1:-1]]
     if second.size < 8:
         return 1e-6
-    mad = float(np.median(np.abs(second - np.median(second))))
+    mad = median(np.abs(second - median(second)))
     return max(MAD_TO_SIGMA * mad / math.sqrt(6.0), 1e-6)
 
 
@@ -306,7 +329,7 @@ def disturbed(deficit: np.ndarray, keep: np.ndarray,
     off = np.zeros(deficit.size, dtype=bool)
     if np.count_nonzero(keep) < 12:
         return off
-    departure = np.where(keep, np.abs(deficit - float(np.median(deficit[keep]))), 0.0)
+    departure = np.where(keep, np.abs(deficit - median(deficit[keep])), 0.0)
     worst, limit = float(departure.max()), DISTURBED_SPREADS * deficit_noise(deficit, keep)
     if not worst > limit:
         return off
@@ -339,7 +362,7 @@ def _bends(deficit, keep, first, last, limit, refit) -> bool:
     other = refit(trial)
     if other is None:
         return False
-    middle = float(np.median(other[trial]))
+    middle = median(other[trial])
     rest = float(np.abs(other[trial] - middle).max())
     run = float(np.abs(other[first:last + 1] - middle).max())
     return rest <= max(limit, LOCAL * run) and limit < run
@@ -470,7 +493,7 @@ def _fit_light(ratio, u, keep, order, sign, centred, least, within=None, both=Fa
     """
     keep = keep.copy()
     for _ in range(3):
-        level = np.polyval(polyfit(u[keep], ratio[keep], order), u)
+        level = _fitted(u, ratio, keep, order)
         least_level = float(level.min() if within is None else level[within].min())
         if not least_level > 0:
             return None

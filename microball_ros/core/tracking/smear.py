@@ -17,7 +17,9 @@ of the fitted frequency through them, which a central difference underestimates 
 five frames per period.
 """
 
+from collections import deque
 import math
+import statistics
 import warnings
 
 import numpy as np
@@ -25,6 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from microball_ros.core.tracking.priming import motion_jitter
 from microball_ros.core.tracking.profile import light_level
+from microball_ros.core.tracking.small_linalg import lstsq, solve
 
 HARMONICS = 2
 OUTLIER_PX = 3.0  # a centre further than this (and 3.5 robust sigmas) from the fit is left out
@@ -32,6 +35,9 @@ SMEAR_JITTER = 0.4  # px: a long smear's plate tracking the priming frames less 
 SMEAR_BIAS = 0.5  # px: ... or registered further than this from the centroid on sharp frames
 SMEAR_SHARP = 16.0  # px: a priming frame whose path is shorter is sharp (``smear_verdict``)
 LONG_BLUR = 0.3  # of the ROI's width: a kernel longer than this is a long smear
+# BlurScale: the fitted over the predicted blur, over the last SCALE_FRAMES frames predicted
+# SCALE_LEAST px long or more, from SCALE_FROM of them, within SCALE_RANGE
+SCALE_FRAMES, SCALE_LEAST, SCALE_FROM, SCALE_RANGE = 15, 2.0, 5, (0.8, 1.25)
 _U = np.linspace(-0.5, 0.5, 33)
 _PATH = np.column_stack([np.ones_like(_U), _U, _U * _U - 1.0 / 12.0])
 
@@ -238,14 +244,44 @@ def local_kernel(previous: float, column: float, following: float, omega: float,
     """
     times = np.array([-1.0, 0.0, 1.0])
     basis = _design(times, omega, 1, fraction)[:, [0, 2, 3]]
-    try:
-        coef = np.linalg.solve(basis, np.array([previous, column, following]))
-    except np.linalg.LinAlgError:
+    coef = solve(basis, np.array([previous, column, following]))
+    if coef is None:
         return quadratic_kernel(previous, column, following, fraction)
     u = _U * fraction
     path = coef[0] + coef[1] * np.cos(omega * u) + coef[2] * np.sin(omega * u)
-    fitted = np.linalg.lstsq(_PATH, path, rcond=None)[0]
+    fitted = lstsq(_PATH, path)
     return abs(float(fitted[1])), float(fitted[2])
+
+
+class BlurScale:
+    """How much longer the fits' blurs are than ``predicted_kernel``'s, over recent frames.
+
+    A kernel through three positions a frame apart (``quadratic_kernel``) has the velocity of
+    their chord: for a sinusoid ``sin(w) / w`` of the true one (0.93 at 0.62 rad/frame, the
+    plain 'baseline' case), so a fit started from it took one more step and the search's
+    smeared plate was short. ``scale`` is the median ratio of the fitted to the predicted blur
+    over the last ``SCALE_FRAMES`` frames predicted at least ``SCALE_LEAST`` px long (1 until
+    ``SCALE_FROM`` are known), within ``SCALE_RANGE``; it multiplies the predicted blur.
+    """
+
+    def __init__(self) -> None:
+        """Start at 1 (no frames)."""
+        self._ratios: deque[float] = deque(maxlen=SCALE_FRAMES)
+        self.scale = 1.0
+
+    def add(self, predicted: float, fitted: float) -> None:
+        """Note a frame's predicted (unscaled) and fitted blur (px)."""
+        if not (predicted >= SCALE_LEAST and math.isfinite(fitted)):
+            return
+        self._ratios.append(fitted / predicted)
+        if len(self._ratios) >= SCALE_FROM:
+            low, high = SCALE_RANGE
+            self.scale = min(max(statistics.median(self._ratios), low), high)
+
+    def reset(self) -> None:
+        """Forget the frames."""
+        self._ratios.clear()
+        self.scale = 1.0
 
 
 def predicted_kernel(prediction, motion: 'PeriodicMotion | None',
