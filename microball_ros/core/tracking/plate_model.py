@@ -253,12 +253,11 @@ def _smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
     ends += np.outer(curves, _ENDS[1])
     ends += np.asarray(shifts, dtype=float)[:, None]
     widths = ends[:, 1:] - ends[:, :-1]
-    if _by_ends(k, widths):  # sum over s of (e_s - e_s+1) / w_s: a weight per end
-        inv = 1.0 / widths
-        weights = np.zeros((len(ends), 1, SEGMENTS + 1))
-        weights[:, 0, :-1] = inv
-        weights[:, 0, 1:] -= inv
-        spectra = np.matmul(weights, _turns(-ends, k))[:, 0]
+    if _by_ends(k, widths):
+        turns = _turns(-ends, k)
+        spectra = turns[:, :-1] - turns[:, 1:]
+        spectra /= widths[:, :, None]
+        spectra = spectra.sum(axis=1)
         spectra /= (1j * SEGMENTS) * k_safe
         spectra[:, 0] = 1.0  # k = 0
         return spectra
