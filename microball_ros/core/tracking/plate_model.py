@@ -109,7 +109,7 @@ def _sinc_parts(half: np.ndarray, k: np.ndarray, k_safe: np.ndarray, slope: bool
 
 
 def _by_ends(k, widths) -> bool:
-    """Return True if a kernel's spectrum is computed from its segments' ends (``_ends``).
+    """Return True if a kernel's spectrum is computed from its segments' ends (``_ENDS``).
 
     A segment's part of the spectrum is ``(e_s - e_s+1) / (i k w_s)``, ``e_j = exp(-i k
     x_j)`` at its ends ``x_j``, ``w_s`` its length: one complex exponential per end instead of
@@ -168,7 +168,9 @@ def _kernel_parts_by_ends(k, mik, k_safe, ends, widths):
     With ``T_s = (e_s - e_s+1) / (i k w_s)`` (``e_j = exp(-i k x_j)``), the spectrum is the
     mean of ``T_s``; ``dT_s/dx_s = (T_s - e_s) / w_s``, ``dT_s/dx_s+1 = (e_s+1 - T_s) / w_s``,
     and ``dx_j/dblur``, ``dx_j/dcurve`` are the ends' rows of ``_ENDS``. Every part is then a
-    sum over the ends' exponentials, some over ``i k``: two small matrix products.
+    sum over the ends' exponentials, some over ``i k``: two small matrix products (of 3 and 2
+    rows: BLAS's gemm; one row would be its gemv, which OpenBLAS runs on a second thread from
+    about 4096 elements, spinning through every frame: see ``_smears``).
     """
     inv = 1.0 / widths
     over = np.zeros((3, SEGMENTS + 1))  # times e, over i k: the spectrum and the T_s parts
@@ -253,7 +255,8 @@ def _smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
     ends += np.outer(curves, _ENDS[1])
     ends += np.asarray(shifts, dtype=float)[:, None]
     widths = ends[:, 1:] - ends[:, :-1]
-    if _by_ends(k, widths):
+    if _by_ends(k, widths):  # summed as arrays: one weighted row of them would be BLAS's gemv,
+        # on two threads from about 4096 elements (the long grids': twice the CPU time)
         turns = _turns(-ends, k)
         spectra = turns[:, :-1] - turns[:, 1:]
         spectra /= widths[:, :, None]
