@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from microball_ros.core.tracking.plate_model import (
+from microball_ros.core.tracking.motion_spectra import (
     _ENDS,
     TURNS_FROM,
-    PlateModel,
     _by_ends,
     _frequencies,
     _kernel_parts,
@@ -22,6 +21,7 @@ from microball_ros.core.tracking.plate_model import (
     kernel_derivatives,
     kernel_spectra,
 )
+from microball_ros.core.tracking.plate_model import PlateModel
 from microball_ros.core.tracking.template import kernel_spectrum
 
 # (blur, curve): at rest, a plain blur, a turnaround inside the exposure (a segment of width

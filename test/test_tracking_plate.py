@@ -19,8 +19,9 @@ from tracking_scenes import render as render_scene
 
 from microball_ros.core.tracking import Tracker, TrackerConfig, plate_model, track
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
+from microball_ros.core.tracking.motion_spectra import kernel_derivatives
 from microball_ros.core.tracking.plate import PlateMarkTracker
-from microball_ros.core.tracking.plate_model import PlateModel, kernel_derivatives
+from microball_ros.core.tracking.plate_model import PlateModel
 import microball_ros.core.tracking.plate_priming as plate_priming
 from microball_ros.core.tracking.plate_solver import PlateSolver, motion_curvatures
 import microball_ros.core.tracking.priming as priming_module

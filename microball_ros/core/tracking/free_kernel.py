@@ -22,7 +22,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import nnls
 
-from microball_ros.core.tracking.plate_model import PlateModel, kernel_spectra
+from microball_ros.core.tracking.motion_spectra import kernel_spectra
+from microball_ros.core.tracking.plate_model import PlateModel
 
 BIN = 0.5  # px: the width of one box of the histogram kernel
 MARGIN = 3.0  # px of histogram beyond the quadratic path's reach on either side

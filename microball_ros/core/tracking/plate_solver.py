@@ -11,12 +11,8 @@ import math
 import numpy as np
 from scipy.ndimage import binary_dilation, binary_opening
 
-from microball_ros.core.tracking.plate_model import (
-    PlateModel,
-    fft_size,
-    grid_window,
-    kernel_spectra,
-)
+from microball_ros.core.tracking.motion_spectra import kernel_spectra
+from microball_ros.core.tracking.plate_model import PlateModel, fft_size, grid_window
 
 
 def motion_kernels(positions: np.ndarray, fraction: float) -> np.ndarray:
