@@ -14,11 +14,11 @@ from microball_ros.core.tracking.motion_spectra import (
     _ENDS,
     TURNS_FROM,
     _by_ends,
-    _frequencies,
-    _kernel_parts,
     _kernel_parts_by_segments,
     _sinc_parts,
+    frequencies,
     kernel_derivatives,
+    kernel_parts,
     kernel_spectra,
 )
 from microball_ros.core.tracking.plate_model import PlateModel
@@ -216,7 +216,7 @@ def test_fit_clear_fits_the_mark_without_a_particle_beside_it():
 
 
 def test_spectra_from_the_segments_ends_are_those_from_their_mids():
-    """``_kernel_parts`` from the ends (one exponential per end) and from mids and widths.
+    """``kernel_parts`` from the ends (one exponential per end) and from mids and widths.
 
     Both ways, shifted, agree to rounding: the spectrum to 1e-13, its derivatives to 1e-9 of
     their largest; a segment shorter than ``ENDS_FROM`` over the lowest frequency (a
@@ -224,12 +224,12 @@ def test_spectra_from_the_segments_ends_are_those_from_their_mids():
     """
     for size in (240, 1080):
         k = 2 * np.pi * np.fft.rfftfreq(size)
-        mik, k_safe = _frequencies(k)
+        mik, k_safe = frequencies(k)
         for blur, curve in [(12.0, 3.0), (55.0, -8.0), (2.0, 0.1), (30.0, 9.0)]:
             ends = blur * _ENDS[0] + curve * _ENDS[1]
             assert _by_ends(k, np.diff(ends))
             for shift in (0.0, -2.7):
-                by_ends = _kernel_parts(k, mik, k_safe, blur, curve, shift)
+                by_ends = kernel_parts(k, mik, k_safe, blur, curve, shift)
                 by_mids = _kernel_parts_by_segments(k, mik, k_safe, blur, curve) * np.exp(
                     mik * shift)
                 assert np.allclose(by_ends[:2], by_mids[:2], rtol=0, atol=1e-13)

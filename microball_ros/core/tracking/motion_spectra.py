@@ -3,7 +3,7 @@
 A quadratic path (blur ``L``, curvature ``Q``, as core.tracking.template) as ``SEGMENTS``
 straight segments of equal duration: ``kernel_spectra`` (several kernels, shifted),
 ``kernel_derivatives`` (the spectrum and its d/dblur, d/dcurve), and the private parts the
-plate fit calls every frame (``_kernel_parts``, ``_smears``), kept fast: phases as coarse
+plate fit calls every frame (``kernel_parts``, ``smears``), kept fast: phases as coarse
 times fine turns (``_turns``), one exponential per segment end (``_by_ends``).
 """
 
@@ -36,7 +36,7 @@ TURNS_FROM = 256  # _turns: from this many frequencies, as coarse times fine tur
 SERIES_BELOW = 1e-3  # _sinc_parts: z this small by the Taylor series
 
 
-def _frequencies(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def frequencies(k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return what the kernel's derivatives need of ``k``: -ik, and k with no zero."""
     return -1j * k, np.where(k == 0.0, _TINY, k)
 
@@ -109,10 +109,10 @@ def _by_ends(k, widths) -> bool:
     return k.size > 1 and float(np.abs(widths).min()) * float(k[1]) >= ENDS_FROM
 
 
-def _kernel_parts(k, mik, k_safe, blur, curve, shift=0.0):
+def kernel_parts(k, mik, k_safe, blur, curve, shift=0.0):
     """Return rows: the kernel's spectrum, its d/dx, d/dblur, d/dcurve (``kernel_derivatives``).
 
-    ``mik``, ``k_safe``: from ``_frequencies(k)``; ``shift``: the kernel moved that far (px).
+    ``mik``, ``k_safe``: from ``frequencies(k)``; ``shift``: the kernel moved that far (px).
     """
     if blur == 0.0:
         return _shifted(_kernel_parts_at_rest(k, mik, curve), mik, shift)
@@ -131,7 +131,7 @@ def _shifted(parts, mik, shift):
 
 
 def _kernel_parts_by_segments(k, mik, k_safe, blur, curve):
-    """Return ``_kernel_parts`` from the segments' mids and half-widths (no ``_by_ends``)."""
+    """Return ``kernel_parts`` from the segments' mids and half-widths (no ``_by_ends``)."""
     mid = blur * _MID_L + curve * _MID_Q
     half = 0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q)
     half[np.abs(half) < _TINY] = _TINY
@@ -152,14 +152,14 @@ def _kernel_parts_by_segments(k, mik, k_safe, blur, curve):
 
 
 def _kernel_parts_by_ends(k, mik, k_safe, ends, widths):
-    """Return ``_kernel_parts`` from the segments' ``ends`` and ``widths`` (``_by_ends``).
+    """Return ``kernel_parts`` from the segments' ``ends`` and ``widths`` (``_by_ends``).
 
     With ``T_s = (e_s - e_s+1) / (i k w_s)`` (``e_j = exp(-i k x_j)``), the spectrum is the
     mean of ``T_s``; ``dT_s/dx_s = (T_s - e_s) / w_s``, ``dT_s/dx_s+1 = (e_s+1 - T_s) / w_s``,
     and ``dx_j/dblur``, ``dx_j/dcurve`` are the ends' rows of ``_ENDS``. Every part is then a
     sum over the ends' exponentials, some over ``i k``: two small matrix products (of 3 and 2
     rows: BLAS's gemm; one row would be its gemv, which OpenBLAS runs on a second thread from
-    about 4096 elements, spinning through every frame: see ``_smears``).
+    about 4096 elements, spinning through every frame: see ``smears``).
     """
     inv = 1.0 / widths
     over = np.zeros((3, SEGMENTS + 1))  # times e, over i k: the spectrum and the T_s parts
@@ -184,8 +184,8 @@ def _kernel_parts_by_ends(k, mik, k_safe, ends, widths):
     return parts
 
 
-def _kernels_parts(k, mik, k_safe, blurs, curves):
-    """Return ``_kernel_parts`` of several kernels (frames x 4 x k), none with blur 0."""
+def kernels_parts(k, mik, k_safe, blurs, curves):
+    """Return ``kernel_parts`` of several kernels (frames x 4 x k), none with blur 0."""
     mid = np.outer(blurs, _MID_L)
     mid += np.outer(curves, _MID_Q)
     half = np.outer(blurs, 0.5 * _WIDTH_L)
@@ -207,7 +207,7 @@ def _kernels_parts(k, mik, k_safe, blurs, curves):
 
 
 def _kernel_parts_at_rest(k, mik, curve):
-    """Return ``_kernel_parts`` for blur 0, rounded exactly as the fits have always had it.
+    """Return ``kernel_parts`` for blur 0, rounded exactly as the fits have always had it.
 
     d/dblur is 0 there (the kernel is even in the blur), so what a Gauss-Newton step from
     blur 0 does is decided by the rounding of that 0; kept as it was, the fits are too.
@@ -234,12 +234,12 @@ def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
     The kernel is the distribution of ``blur u + curve (u^2 - 1/12)``, ``u`` uniform in
     [-1/2, 1/2], as ``SEGMENTS`` straight segments of equal duration.
     """
-    spectrum, _, d_blur, d_curve = _kernel_parts(k, *_frequencies(k), blur, curve)
+    spectrum, _, d_blur, d_curve = kernel_parts(k, *frequencies(k), blur, curve)
     return spectrum, d_blur, d_curve
 
 
-def _smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
-    """Return the spectra of kernels (rows, as ``kernel_spectra``); ``_frequencies(k)``."""
+def smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
+    """Return the spectra of kernels (rows, as ``kernel_spectra``); ``frequencies(k)``."""
     ends = np.outer(blurs, _ENDS[0])
     ends += np.outer(curves, _ENDS[1])
     ends += np.asarray(shifts, dtype=float)[:, None]
@@ -267,4 +267,4 @@ def _smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
 def kernel_spectra(k: np.ndarray, blurs: np.ndarray, curves: np.ndarray,
                    shifts: np.ndarray) -> np.ndarray:
     """Return the spectra of several kernels (rows), each shifted by ``shifts`` (px)."""
-    return _smears(k, *_frequencies(k), blurs, curves, shifts)
+    return smears(k, *frequencies(k), blurs, curves, shifts)

@@ -10,10 +10,10 @@ import math
 import numpy as np
 
 from microball_ros.core.tracking.motion_spectra import (
-    _frequencies,
-    _kernel_parts,
-    _kernels_parts,
-    _smears,
+    frequencies,
+    kernel_parts,
+    kernels_parts,
+    smears,
 )
 from microball_ros.core.tracking.small_linalg import solve
 from microball_ros.core.tracking.template import kernel_spectrum, tukey
@@ -70,7 +70,7 @@ class PlateModel:
 
     def model(self, delta, blur, curve, slope=False):
         """Return D smeared by (blur, curve) with its origin at ``center + delta`` (grid)."""
-        spectrum = self.spectrum * _smears(self.k, *self._frequencies(), (blur,), (curve,),
+        spectrum = self.spectrum * smears(self.k, *self.frequencies(), (blur,), (curve,),
                                            (delta,))[0]
         if not slope:
             return np.fft.irfft(spectrum, self.size)
@@ -178,13 +178,13 @@ class PlateModel:
         y = window[used]
         y_mean = float(y.mean())
         y_centred = y - y_mean
-        mik, k_safe = self._frequencies()
+        mik, k_safe = self.frequencies()
         delta, blur, curve = float(delta), abs(float(blur)), float(curve)
         result = lowest = None
         jacobian = np.empty((5, count))
         jacobian[0] = 1.0
         for _ in range(iterations):
-            kernel = _kernel_parts(self.k, mik, k_safe, blur, curve, delta)
+            kernel = kernel_parts(self.k, mik, k_safe, blur, curve, delta)
             kernel *= self.spectrum
             model = np.fft.irfft(kernel, self.size, axis=1)[:, used]
             m = model[0]
@@ -307,7 +307,7 @@ class PlateModel:
         y = windows[batch, lo:hi] * mask
         y_mean = y.sum(axis=1) / counts
         y_centred = (y - y_mean[:, None]) * mask
-        mik, k_safe = self._frequencies()
+        mik, k_safe = self.frequencies()
         state = np.array([deltas[batch], blurs[batch], curves[batch]])
         kept: list = [None] * batch.size  # per frame: state, gain, offset, cost, normal
         active = np.arange(batch.size)
@@ -316,7 +316,7 @@ class PlateModel:
             if active.size == 0:
                 break
             delta, blur, curve = state[:, active]
-            parts = _kernels_parts(self.k, mik, k_safe, blur, curve)
+            parts = kernels_parts(self.k, mik, k_safe, blur, curve)
             parts *= (self.spectrum * np.exp(mik * delta[:, None]))[:, None, :]
             model = np.fft.irfft(parts, self.size, axis=2)[:, :, lo:hi]
             w = mask[active]
@@ -375,10 +375,10 @@ class PlateModel:
                           float(gain), float(offset), math.sqrt(variance), sigma, sigma_gain)
         return results
 
-    def _frequencies(self) -> tuple[np.ndarray, np.ndarray]:
-        """Return -ik and k with no zero, for ``_kernel_parts`` (kept: ``k`` never changes)."""
+    def frequencies(self) -> tuple[np.ndarray, np.ndarray]:
+        """Return -ik and k with no zero, for ``kernel_parts`` (kept: ``k`` never changes)."""
         if getattr(self, '_kept_frequencies', None) is None:
-            self._kept_frequencies = _frequencies(self.k)
+            self._kept_frequencies = frequencies(self.k)
         return self._kept_frequencies
 
     def local(self, shift: float, support: float) -> 'PlateModel':
