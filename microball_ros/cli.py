@@ -174,7 +174,7 @@ def cmd_track(args):
     if args.output is None and args.preview is None:
         raise CliError('give --output FILE.csv (or --preview FILE.png)')
     config = TrackerConfig(polarity=args.polarity, method=args.method,
-                           black_level=args.black_level)
+                           black_level=args.black_level, gamma=args.gamma)
     rois = {'slider': args.slider_roi, 'stator': args.stator_roi}
     source = FrameSource(args.video)
     max_frames = args.preview_frames if args.preview and not args.output else None
@@ -515,6 +515,11 @@ def build_parser():
                        help="the camera's dark offset, the value of a pixel that gets no "
                             'light (default 0: estimated from the shadow): a shadow passing '
                             'over a mark is divided out above it')
+    track.add_argument('--gamma', type=_positive_float, default=1.0, metavar='G',
+                       help="the camera's encoding gamma: frames are decoded to linear light "
+                            'first (default 1: a linear camera, as machine-vision cameras '
+                            'are; about 2.2 for sRGB video from consumer cameras and webcams; '
+                            '0.2 .. 5)')
     track.add_argument('--method', choices=['auto', 'template'], default='auto',
                        help="'auto' (default): the mark's contrast centroid on a plain "
                             'plate; on a textured plate (found on the first frames) the plate '

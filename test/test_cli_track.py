@@ -106,6 +106,8 @@ def _run(*argv):
     ({'--stator-roi': '1,2,3'}, 'four integers'),
     ({'--black-level': '-3'}, '>= 0'),
     ({'--black-level': 'dark'}, 'not a number'),
+    ({'--gamma': '0'}, 'positive'),
+    ({'--gamma': '9'}, 'gamma must be in 0.2 .. 5'),
 ])
 def test_bad_track_input_gives_one_line_and_exit_2(paper_video, tmp_path, change, message):
     _, path, video = paper_video

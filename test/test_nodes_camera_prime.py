@@ -409,7 +409,7 @@ def test_a_bag_of_frames_is_tracked_offline_as_the_node_tracks_it(textured, tmp_
     bag = open_bag(path)
     parameters = tracker_parameters(bag)
     assert parameters['prime_frames'] == 60 and parameters['polarity'] == 'auto'
-    assert parameters['black_level'] == 0.0
+    assert parameters['black_level'] == 0.0 and parameters['gamma'] == 1.0
     rows = list(tracked_frames(bag, parameters))
     expected = track(scene.frames, scene.rois, SCALE, 30.0, times=times)
     assert [row[1] for row in rows] == list(range(len(scene.frames)))

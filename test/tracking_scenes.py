@@ -6,7 +6,7 @@ with a mark of any polarity and shape ('bar', 'cross', 'pair' of bars, 'blob', a
 moving along x;
 optional surface texture that moves with its plate, a static texture (fixed in the image:
 light added, ``static_texture`` in DN, or a transmission, ``static_transmission`` relative),
-illumination flicker, a soft shadow sweeping over the plates, a camera's dark offset,
+illumination flicker, a soft shadow sweeping over the plates, a camera's dark offset and gamma,
 occlusions, a tool held beside a mark's path, 8- or 16-bit output. Everything is analytic:
 the textures are sums of plane waves, so motion blur, pixel integration and the optical PSF
 are exact factors per wave; the marks are boxes or Gaussians integrated over each pixel and
@@ -68,6 +68,7 @@ class SceneSpec:
     read_noise: float = 1.0
     bits: int = 8
     black: float = 0.0  # the camera's dark offset, DN (added to every pixel before noise)
+    gamma: float = 1.0  # the camera's encoding: 255 (dn / 255) ** (1 / gamma), after the noise
     # A soft shadow band sweeping along x: (first frame, last frame, x at first, x at last,
     # width, penumbra, depth, tilt in degrees from the vertical), centred on the frame's
     # middle row; the light is 1 - depth * smoothstep((width / 2 + penumbra - d) /
@@ -238,6 +239,8 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), pas
             expected.append(mean + spec.black)
         noise = np.sqrt(mean / spec.gain + spec.read_noise ** 2)
         dn = spec.black + mean + noise * rng.standard_normal(mean.shape)
+        if spec.gamma != 1.0:
+            dn = 255.0 * (np.clip(dn, 0.0, 255.0) / 255.0) ** (1.0 / spec.gamma)
         top_value = 65535 if spec.bits == 16 else 255
         dtype = np.uint16 if spec.bits == 16 else np.uint8
         frames.append(np.clip(np.rint(dn * scale), 0, top_value).astype(dtype))

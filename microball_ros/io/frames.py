@@ -30,7 +30,7 @@ def tracker_parameters(bag, slider_roi=None, stator_roi=None, meters_per_pixel=N
     """Return the camera_tracker parameters to track the bag's frames with.
 
     A dict with slider_roi, stator_roi (x, y, w, h lists), meters_per_pixel, stamp_offset,
-    polarity, prime_frames and black_level.
+    polarity, prime_frames, black_level and gamma.
     Given values win over recorded ones. Raise BagError (one line) if the scale is neither
     given nor recorded, or if ROIs must be detected and cannot be.
     """
@@ -43,6 +43,7 @@ def tracker_parameters(bag, slider_roi=None, stator_roi=None, meters_per_pixel=N
     values['polarity'] = str(recorded.get('polarity', 'auto'))
     values['prime_frames'] = int(recorded.get('prime_frames', TrackerConfig().prime_frames))
     values['black_level'] = float(recorded.get('black_level', 0.0))
+    values['gamma'] = float(recorded.get('gamma', 1.0))
     if values['meters_per_pixel'] is None:
         raise BagError(f'{bag.path}: the bag has only camera frames and no recorded image '
                        'scale: give --meters-per-pixel (and --slider-roi/--stator-roi)')
@@ -73,7 +74,8 @@ def tracked_frames(bag, parameters):
     rois = {'slider': tuple(parameters['slider_roi']),
             'stator': tuple(parameters['stator_roi'])}
     config = TrackerConfig(polarity=parameters.get('polarity', 'auto'),
-                           black_level=float(parameters.get('black_level', 0.0)))
+                           black_level=float(parameters.get('black_level', 0.0)),
+                           gamma=float(parameters.get('gamma', 1.0)))
     frames = read_frames(bag)
     head = list(itertools.islice(frames, max(int(parameters.get(
         'prime_frames', config.prime_frames)), 0)))

@@ -90,6 +90,9 @@ PARAMS = {
                               'shadow passing over a mark is divided out above it (0: '
                               'estimated from the shadow)', 0.0, 1.0e6,
                          read_only=True),
+    'gamma': Param(1.0, "the camera's encoding gamma: frames are decoded to linear light "
+                        'first (1: a linear camera, as machine-vision cameras are; about 2.2 '
+                        'for sRGB video)', 0.2, 5.0, read_only=True),
     'publish_debug_image': Param(False, 'publish tracking/debug_image with the marks drawn'),
     'frame_id': Param('camera', 'frame_id for positions from video_path', read_only=True),
     'wait_for_subscribers': Param(0, 'subscribe to the images only once tracking/positions has '
@@ -130,7 +133,8 @@ def check_parameters(values):
         check_distinct_rois({'slider': check_roi(values['slider_roi'], name='slider'),
                              'stator': check_roi(values['stator_roi'], name='stator')})
         check_scale(values['meters_per_pixel'])
-        TrackerConfig(polarity=values['polarity'], black_level=values['black_level'])
+        TrackerConfig(polarity=values['polarity'], black_level=values['black_level'],
+                      gamma=values['gamma'])
     except ValueError as error:
         return str(error)
     return None
@@ -214,7 +218,8 @@ class CameraTracker(Node):
                       'stator': tuple(values['stator_roi'])}
         self._config = TrackerConfig(polarity=values['polarity'],
                                      prime_frames=values['prime_frames'],
-                                     black_level=values['black_level'])
+                                     black_level=values['black_level'],
+                                     gamma=values['gamma'])
         self._tracker = None
         self._frame_size = None
         self._frames = 0

@@ -64,9 +64,10 @@ A failed check gives NaN and a quality below ``min_quality``: positions are neve
 each frame is searched over the whole ROI, so a mark is re-acquired as soon as it returns.
 
 Frames are arrays (N x H x W, N x H x W x 3, or any iterable of 2-D arrays); video files and
-image folders are opened by microball_ros.io.video. Positions are image columns times
-``meters_per_pixel`` (column k is the centre of pixel k); time of frame n is
-``start_time + n / fps + exposure / 2``.
+image folders are opened by microball_ros.io.video. A gamma-encoding camera's frames are
+decoded to linear light first (``TrackerConfig.gamma``, core.tracking.gamma). Positions
+are image columns times ``meters_per_pixel`` (column k is the centre of pixel k); time of
+frame n is ``start_time + n / fps + exposure / 2``.
 
 Entry points: ``track`` (a whole sequence -> TrackResult, ``to_columns()`` gives the position
 CSV columns), ``Tracker`` (frame by frame, for a node), ``MarkTracker`` (one mark),

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import math
 
 from microball_ros.core.errors import InputError
+from microball_ros.core.tracking.gamma import GAMMA_RANGE, check_gamma
 
 METHODS = ('auto', 'centroid', 'symmetric', 'template')
 POLARITIES = ('auto', 'dark', 'bright')
@@ -36,6 +37,9 @@ class TrackerConfig:
     ``merge_gap_px``: parts of a mark above the threshold this close are one mark (bars).
     ``black_level``: the camera's dark offset (DN, the value of a pixel that gets no light;
     0: none): a passing shadow's light (core.tracking.shade) scales the pixels above it.
+    ``gamma``: the camera's encoding gamma (1: linear, as machine-vision cameras are; about
+    2.2 for sRGB video): frames are decoded to linear light before anything else
+    (core.tracking.gamma); ``black_level`` is then in linear units.
     ``static_background``: the default methods learn a pattern fixed in the image (a window,
     dust, scratches) from the priming frames and divide it out, when it stands out from the
     noise (core.tracking.background).
@@ -55,6 +59,7 @@ class TrackerConfig:
     min_baseline: float = 4.0
     saturation_level: float | None = None
     black_level: float = 0.0
+    gamma: float = 1.0
     max_saturated_fraction: float = 0.002
     area_tolerance: float = 0.12
     area_history: int = 9
@@ -79,6 +84,13 @@ class TrackerConfig:
         if not (math.isfinite(self.black_level) and self.black_level >= 0):
             raise InputError(f'black level must be a finite number >= 0 DN, '
                              f'got {self.black_level!r}')
+        try:
+            gamma = float(self.gamma)
+        except (TypeError, ValueError):
+            gamma = math.nan
+        if not check_gamma(gamma):
+            raise InputError(f'gamma must be in {GAMMA_RANGE[0]:g} .. {GAMMA_RANGE[1]:g} (1: a '
+                             f'linear camera), got {self.gamma!r}')
         if not 0 <= int(self.baseline_degree) <= 5:
             raise InputError('tracker baseline_degree must be in 0..5')
         if (int(self.smoothing_px) < 1 or int(self.pad_px) < 0 or int(self.area_history) < 1

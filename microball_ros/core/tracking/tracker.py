@@ -21,6 +21,7 @@ import numpy.typing as npt
 
 from microball_ros.core.errors import InputError
 from microball_ros.core.tracking.config import TrackerConfig
+from microball_ros.core.tracking.gamma import GammaDecoder, full_scale
 from microball_ros.core.tracking.image import (
     Roi,
     check_distinct_rois,
@@ -78,6 +79,7 @@ class Tracker:
         self.shades: dict[str, Shade] = {}  # per mark, a passing shadow's light (priming)
         self.shaded = dict.fromkeys(self.marks, 0)  # per mark, frames a shadow was divided out of
         self.black = BlackLevel()  # the camera's, from the shadows (unless config gives it)
+        self.decoder = GammaDecoder(self.config.gamma)  # to linear light (core.tracking.gamma)
 
     def frame_time(self, index: int) -> float:
         """Return the mid-exposure time (s) of frame ``index``."""
@@ -90,7 +92,7 @@ class Tracker:
         them again, so the first frames get the learned mark too. Frames that are a raw
         colour mosaic are smoothed from now on (``mosaic``).
         """
-        grey = [to_gray(frame) for frame in frames]
+        grey = [self._linear(to_gray(frame)) for frame in frames]
         self.mosaic = is_mosaic(grey)
         if self.mosaic:
             grey = [unmosaic(frame) for frame in grey]
@@ -110,7 +112,7 @@ class Tracker:
         ``time`` (s, mid-exposure) overrides the stamp computed from the frame index (for
         example the header stamp of a received image).
         """
-        frame = to_gray(frame)
+        frame = self._linear(to_gray(frame))
         if self.mosaic:
             frame = unmosaic(frame)
         result = TrackedFrame(
@@ -119,6 +121,24 @@ class Tracker:
             meters_per_pixel=self.meters_per_pixel)
         self.index += 1
         return result
+
+    def _linear(self, frame: np.ndarray) -> np.ndarray:
+        """Return ``frame`` in linear light (``config.gamma``; 1: the frame itself).
+
+        Decoded frames are floats, whose pixel type tells no saturation level: before the
+        first one, the config's (if not given) becomes the pixel type's full scale, which
+        decoding keeps, and the marks' trackers start again with it.
+        """
+        if not self.decoder.active:
+            return frame
+        if (self.config.saturation_level is None
+                and np.issubdtype(frame.dtype, np.integer)):
+            self.config = dataclasses.replace(self.config,
+                                              saturation_level=full_scale(frame))
+            self.marks = {name: MarkTracker(mark.roi, self.config, name,
+                                            self.exposure * self.fps)
+                          for name, mark in self.marks.items()}
+        return self.decoder(frame)
 
     def _measure(self, name: str, mark: Any, frame: np.ndarray) -> MarkMeasurement:
         """Return mark ``name``'s measurement in ``frame``, with a passing shadow divided out.
