@@ -46,6 +46,10 @@ def _non_negative_float(text):
     return value
 
 
+def _gamma(text):
+    return 0.0 if text == 'auto' else _positive_float(text)
+
+
 def _fraction(text):
     try:
         value = float(text)
@@ -515,11 +519,12 @@ def build_parser():
                        help="the camera's dark offset, the value of a pixel that gets no "
                             'light (default 0: estimated from the shadow): a shadow passing '
                             'over a mark is divided out above it')
-    track.add_argument('--gamma', type=_positive_float, default=1.0, metavar='G',
+    track.add_argument('--gamma', type=_gamma, default=0.0, metavar='auto|G',
                        help="the camera's encoding gamma: frames are decoded to linear light "
-                            'first (default 1: a linear camera, as machine-vision cameras '
-                            'are; about 2.2 for sRGB video from consumer cameras and webcams; '
-                            '0.2 .. 5)')
+                            'first (1: a linear camera, as machine-vision cameras are; about '
+                            '2.2 for sRGB video from consumer cameras and webcams; 0.2 .. 5). '
+                            "Default 'auto': found from the first frames (the marks' "
+                            'deficits shrink with their smear if encoded), else 1')
     track.add_argument('--method', choices=['auto', 'template'], default='auto',
                        help="'auto' (default): the mark's contrast centroid on a plain "
                             'plate; on a textured plate (found on the first frames) the plate '

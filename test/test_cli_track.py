@@ -108,6 +108,7 @@ def _run(*argv):
     ({'--black-level': 'dark'}, 'not a number'),
     ({'--gamma': '0'}, 'positive'),
     ({'--gamma': '9'}, 'gamma must be in 0.2 .. 5'),
+    ({'--gamma': 'sRGB'}, 'not a number'),
 ])
 def test_bad_track_input_gives_one_line_and_exit_2(paper_video, tmp_path, change, message):
     _, path, video = paper_video
@@ -269,3 +270,25 @@ def test_track_says_when_the_video_is_a_raw_colour_mosaic(tmp_path, capsys):
         error = table[f'{name}_position'] / 1e-6 - scene.truth[name]
         assert np.all(np.isfinite(error)), name
         assert float(np.sqrt(np.mean(error ** 2))) < 0.06, name
+
+
+def test_track_finds_and_says_a_cameras_gamma(tmp_path, capsys):
+    """Frames encoded with gamma 2.2 (core.tracking.gamma): found, decoded, and said once."""
+    from tracking_scenes import SceneSpec
+    from tracking_scenes import render as render_scene
+
+    scene = render_scene(SceneSpec(gamma=2.2), 90, seed=11)
+    video = write_video(tmp_path / 'video.mkv', list(scene.frames), codec='FFV1')
+    rois = {name: ','.join(map(str, roi)) for name, roi in scene.rois.items()}
+    argv = ['track', str(video), '--slider-roi', rois['slider'], '--stator-roi',
+            rois['stator'], '--meters-per-pixel', '5e-6', '--fps', '30',
+            '--exposure', repr(1.0 / 60.0)]
+    assert main(argv + ['--output', str(tmp_path / 'found.csv')]) == 0
+    said = [line for line in capsys.readouterr().out.splitlines() if 'gamma' in line]
+    assert len(said) == 1 and 'decoded with gamma 2.' in said[0], said
+    assert main(argv + ['--gamma', '1', '--output', str(tmp_path / 'read.csv')]) == 0
+    assert not [line for line in capsys.readouterr().out.splitlines() if 'gamma' in line]
+    found = np.genfromtxt(tmp_path / 'found.csv', delimiter=',', names=True)
+    for name in ('slider', 'stator'):
+        error = found[f'{name}_position'] / 5e-6 - scene.truth[name]
+        assert np.all(np.isfinite(error)) and np.sqrt(np.mean(error ** 2)) < 0.06, name

@@ -212,6 +212,8 @@ def test_textured_plate_positions_equal_track_value_for_value(ros_context, textu
             assert float(centres[name]) == pytest.approx(expected.centre_sigma_px[name],
                                                          abs=1e-4)
             assert expected.centre_sigma_px[name] > 0
+        # The frames are linear: priming (gamma 0, the default) found so (core.tracking.gamma)
+        assert _values(status)['gamma'] == '1.00 (found)' and expected.gamma == 1.0
         harness.spin_until(lambda: len(camera.debug) == n, 30.0, f'{n} debug images')
         assert [d.header for d in camera.debug] == [p.header for p in camera.positions]
         assert tracker.diagnostics.counts['errors'] == 0
@@ -409,7 +411,7 @@ def test_a_bag_of_frames_is_tracked_offline_as_the_node_tracks_it(textured, tmp_
     bag = open_bag(path)
     parameters = tracker_parameters(bag)
     assert parameters['prime_frames'] == 60 and parameters['polarity'] == 'auto'
-    assert parameters['black_level'] == 0.0 and parameters['gamma'] == 1.0
+    assert parameters['black_level'] == 0.0 and parameters['gamma'] == 0.0
     rows = list(tracked_frames(bag, parameters))
     expected = track(scene.frames, scene.rois, SCALE, 30.0, times=times)
     assert [row[1] for row in rows] == list(range(len(scene.frames)))

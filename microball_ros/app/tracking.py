@@ -3,7 +3,8 @@
 Each line states something about the numbers' uncertainty that the CSV's columns alone do not:
 where the marks' centres lie on textured plates (one error common to every frame), the caveat
 on a lossy video's standard errors, the frames a passing shadow was divided out of
-(core.tracking.shade), and a raw colour mosaic smoothed before tracking.
+(core.tracking.shade), a raw colour mosaic smoothed before tracking, and frames decoded
+with a gamma found from them (core.tracking.gamma).
 """
 
 import math
@@ -39,6 +40,10 @@ def summary_lines(result: TrackResult, source: FrameSource, black_level: float) 
     if result.mosaic:
         lines.append('the frames are a raw colour mosaic (Bayer, not demosaiced): tracked '
                      'smoothed [1 2 1] / 4 in x and y')
+    if result.gamma_found and result.gamma != 1.0:
+        lines.append(f"the frames look gamma-encoded (the marks' deficits shrank with their "
+                     f'smear): decoded with gamma {result.gamma:.2f} found from the first '
+                     'frames (give --gamma G if known, --gamma 1 to track them as read)')
     return lines
 
 

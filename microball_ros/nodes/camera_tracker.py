@@ -38,6 +38,7 @@ stream that stops early would keep its frames forever. Every other output is a f
 the ordered frames and the parameters.
 """
 
+import math
 import sys
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
@@ -90,9 +91,10 @@ PARAMS = {
                               'shadow passing over a mark is divided out above it (0: '
                               'estimated from the shadow)', 0.0, 1.0e6,
                          read_only=True),
-    'gamma': Param(1.0, "the camera's encoding gamma: frames are decoded to linear light "
+    'gamma': Param(0.0, "the camera's encoding gamma: frames are decoded to linear light "
                         'first (1: a linear camera, as machine-vision cameras are; about 2.2 '
-                        'for sRGB video)', 0.2, 5.0, read_only=True),
+                        'for sRGB video; 0: found from the priming frames, else 1)', 0.0, 5.0,
+                   read_only=True),
     'publish_debug_image': Param(False, 'publish tracking/debug_image with the marks drawn'),
     'frame_id': Param('camera', 'frame_id for positions from video_path', read_only=True),
     'wait_for_subscribers': Param(0, 'subscribe to the images only once tracking/positions has '
@@ -165,7 +167,8 @@ class TrackerDiagnostics(NodeDiagnostics):
     Once primed, 'centre_sigma_px' too: each mark's centre_sigma_px ('slider 0.0500, ...'),
     and once a passing shadow was divided out of a frame (core.tracking.shade),
     'shaded_frames': how many frames per mark ('slider 41, stator 0'), and once the shadows
-    told the camera's black level (not given), 'black_level_dn' ('6.1 +- 0.3').
+    told the camera's black level (not given), 'black_level_dn' ('6.1 +- 0.3'); once primed,
+    'gamma': the gamma the frames are decoded with ('1.00 (found)', '2.20').
 
     While the node learns, the status message says so; a priming cut short by a pause of the
     images is a warning for one period (the 'priming' value keeps saying it).
@@ -176,6 +179,7 @@ class TrackerDiagnostics(NodeDiagnostics):
         self.centres = ''  # once primed: each mark's centre_sigma_px
         self.shaded = ''  # the frames per mark a passing shadow was divided out of, if any
         self.black = ''  # the camera's black level estimated from the shadows, if any
+        self.gamma = ''  # once primed: the gamma the frames are decoded with
         self._warning = ''
         super().__init__(node, **kwargs)
 
@@ -197,6 +201,8 @@ class TrackerDiagnostics(NodeDiagnostics):
             status.values.append(KeyValue(key='shaded_frames', value=self.shaded))
         if self.black:
             status.values.append(KeyValue(key='black_level_dn', value=self.black))
+        if self.gamma:
+            status.values.append(KeyValue(key='gamma', value=self.gamma))
         if self._warning:
             status.level = max(status.level, DiagnosticStatus.WARN)
             status.message = (self._warning if status.message == 'ok'
@@ -352,6 +358,9 @@ class CameraTracker(Node):
         # How well each mark's centre is known: one error in every frame (in the sigmas too)
         self.diagnostics.centres = ', '.join(f'{name} {mark.centre_sigma_px:.4f}'
                                              for name, mark in self._tracker.marks.items())
+        # The gamma the frames are decoded with, and whether priming found it (gamma 0)
+        found = ' (found)' if math.isfinite(self._tracker.gamma_found) else ''
+        self.diagnostics.gamma = f'{self._tracker.decoder.gamma:.2f}{found}'
         for frame, stamp, frame_id in held:
             self._track(frame, stamp, frame_id)
 

@@ -39,7 +39,8 @@ class TrackerConfig:
     0: none): a passing shadow's light (core.tracking.shade) scales the pixels above it.
     ``gamma``: the camera's encoding gamma (1: linear, as machine-vision cameras are; about
     2.2 for sRGB video): frames are decoded to linear light before anything else
-    (core.tracking.gamma); ``black_level`` is then in linear units.
+    (core.tracking.gamma); ``black_level`` is then in linear units. 0 (the default): found
+    from the priming frames (the marks' deficits shrink with their smear if encoded), else 1.
     ``static_background``: the default methods learn a pattern fixed in the image (a window,
     dust, scratches) from the priming frames and divide it out, when it stands out from the
     noise (core.tracking.background).
@@ -59,7 +60,7 @@ class TrackerConfig:
     min_baseline: float = 4.0
     saturation_level: float | None = None
     black_level: float = 0.0
-    gamma: float = 1.0
+    gamma: float = 0.0
     max_saturated_fraction: float = 0.002
     area_tolerance: float = 0.12
     area_history: int = 9
@@ -90,7 +91,7 @@ class TrackerConfig:
             gamma = math.nan
         if not check_gamma(gamma):
             raise InputError(f'gamma must be in {GAMMA_RANGE[0]:g} .. {GAMMA_RANGE[1]:g} (1: a '
-                             f'linear camera), got {self.gamma!r}')
+                             f'linear camera; 0: find it), got {self.gamma!r}')
         if not 0 <= int(self.baseline_degree) <= 5:
             raise InputError('tracker baseline_degree must be in 0..5')
         if (int(self.smoothing_px) < 1 or int(self.pad_px) < 0 or int(self.area_history) < 1

@@ -65,6 +65,8 @@ class PlatePriming:
         self._fallback = CentroidMarkTracker(self.roi, self.config, name, exposure_fraction)
         self.plate: PlateModel | None = None
         self.texture = 0.0
+        # The centroid's priming track: ROI columns and smeared lengths (NaN: not found)
+        self.priming_track: tuple[np.ndarray, np.ndarray] | None = None
         self.weights: np.ndarray | None = None
         self.static: np.ndarray | None = None
         self.flat: np.ndarray | None = None
@@ -184,6 +186,7 @@ class PlatePriming:
         frames = list(frames)
         self._forget()
         self.texture, self.jitter, self._area = 0.0, None, (0.0, 0.0)
+        self.priming_track = None
         self._fallback.prime(frames)
         # The centroid's rows learned while priming serve it when it measures the frames; the
         # choices and the learning below see it as they always did (rows learned as it tracks)
@@ -212,6 +215,8 @@ class PlatePriming:
         self.texture = texture_score(sample, marks)
         # A still mark (a stuck slider) learns no plate: the centroid's, or core.tracking.still's
         centroid = self._track_priming(frames, self._fallback.measure)
+        self.priming_track = (centroid[0], np.array(
+            [m.extent_px if m.valid else math.nan for m in centroid[1]]))
         still = is_still(centroid[1], x)
         # Without the pattern fixed in the image (a dot of dust deeper than the mark in their
         # mean was taken for a still mark); a mark still over the priming frames is in that

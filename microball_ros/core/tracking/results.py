@@ -78,7 +78,9 @@ class TrackResult:
     ``mosaic`` whether the frames were a raw colour mosaic, smoothed (core.tracking.mosaic);
     ``shaded`` per mark, the frames a passing shadow was divided out of (core.tracking.shade);
     ``black_level`` the camera's black level (DN) estimated from the shadows and its standard
-    error (NaN, NaN when given, or when no shadow told it).
+    error (NaN, NaN when given, or when no shadow told it); ``gamma`` the gamma the frames
+    were decoded with (1: as read; core.tracking.gamma) and ``gamma_found`` whether priming
+    found it (gamma 0 in the config).
     """
 
     time: np.ndarray
@@ -96,6 +98,8 @@ class TrackResult:
     mosaic: bool = False
     shaded: dict[str, int] = field(default_factory=dict)
     black_level: tuple[float, float] = (math.nan, math.nan)
+    gamma: float = 1.0
+    gamma_found: bool = False
 
     def to_columns(self) -> dict[str, np.ndarray]:
         """Return the position-CSV columns (docs/design.md section 5) as an ordered dict.

@@ -21,7 +21,13 @@ import numpy.typing as npt
 
 from microball_ros.core.errors import InputError
 from microball_ros.core.tracking.config import TrackerConfig
-from microball_ros.core.tracking.gamma import GammaDecoder, full_scale
+from microball_ros.core.tracking.gamma import (
+    AUTO,
+    GammaDecoder,
+    adopted_gamma,
+    full_scale,
+    smear_evidence,
+)
 from microball_ros.core.tracking.image import (
     Roi,
     check_distinct_rois,
@@ -33,6 +39,7 @@ from microball_ros.core.tracking.image import (
 )
 from microball_ros.core.tracking.mark import MarkTracker
 from microball_ros.core.tracking.mosaic import is_mosaic, unmosaic
+from microball_ros.core.tracking.priming import TEXTURE_SCORE
 from microball_ros.core.tracking.profile import saturation_level
 from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
 from microball_ros.core.tracking.shade import BlackLevel, Shade, ShadowNote, gain_slack
@@ -79,7 +86,9 @@ class Tracker:
         self.shades: dict[str, Shade] = {}  # per mark, a passing shadow's light (priming)
         self.shaded = dict.fromkeys(self.marks, 0)  # per mark, frames a shadow was divided out of
         self.black = BlackLevel()  # the camera's, from the shadows (unless config gives it)
-        self.decoder = GammaDecoder(self.config.gamma)  # to linear light (core.tracking.gamma)
+        # To linear light (core.tracking.gamma); with gamma 0, priming may find one
+        self.decoder = GammaDecoder(1.0 if self.config.gamma == AUTO else self.config.gamma)
+        self.gamma_found = math.nan  # priming's verdict with gamma 0 (1.0: linear)
 
     def frame_time(self, index: int) -> float:
         """Return the mid-exposure time (s) of frame ``index``."""
@@ -90,9 +99,24 @@ class Tracker:
 
         Batch tracking primes on the first ``config.prime_frames`` frames and then tracks
         them again, so the first frames get the learned mark too. Frames that are a raw
-        colour mosaic are smoothed from now on (``mosaic``).
+        colour mosaic are smoothed from now on (``mosaic``). With ``config.gamma`` 0, the
+        marks' deficits against their smear tell whether the frames are gamma-encoded
+        (core.tracking.gamma): if so, the marks are primed again on the frames decoded.
         """
-        grey = [self._linear(to_gray(frame)) for frame in frames]
+        read = [to_gray(frame) for frame in frames]
+        grey = self._prime(read)
+        if self.config.gamma == AUTO and not self.decoder.active:
+            evidence = [self._smear_evidence(name, mark, grey)
+                        for name, mark in self.marks.items()]
+            found = adopted_gamma(evidence)
+            if found != 1.0:
+                self.decoder = GammaDecoder(found)
+                self._prime(read)
+            self.gamma_found = found
+
+    def _prime(self, read: list[np.ndarray]) -> list[np.ndarray]:
+        """Prime every mark and shade on the frames ``read`` (grey); return them as primed."""
+        grey = [self._linear(frame) for frame in read]
         self.mosaic = is_mosaic(grey)
         if self.mosaic:
             grey = [unmosaic(frame) for frame in grey]
@@ -105,6 +129,17 @@ class Tracker:
                 shade.prime([roi_region(frame, mark.roi, name) for frame in grey])
                 if shade.enabled:
                     self.shades[name] = shade
+        return grey
+
+    def _smear_evidence(self, name: str, mark: Any, grey: list[np.ndarray]):
+        """Return a plain plate's mark's evidence of an encoding gamma (None: none)."""
+        track, rows = getattr(mark, 'priming_track', None), getattr(mark, 'mark_rows', None)
+        if track is None or rows is None or mark.polarity is None or (
+                getattr(mark, 'texture', 0.0) >= TEXTURE_SCORE):
+            return None
+        saturation = saturation_level(grey[0].dtype, self.config.saturation_level)
+        regions = [roi_region(frame, mark.roi, name)[rows[0]:rows[1]] for frame in grey]
+        return smear_evidence(regions, track[0], track[1], mark.polarity, saturation)
 
     def process(self, frame: npt.ArrayLike, time: float | None = None) -> TrackedFrame:
         """Track all marks in the next frame and return a TrackedFrame.
@@ -291,4 +326,5 @@ def track(frames: Iterable[npt.ArrayLike] | np.ndarray, rois: Mapping[str, Roi],
         centre_sigma_px={n: m.centre_sigma_px for n, m in tracker.marks.items()},
         mosaic=tracker.mosaic, shaded=dict(tracker.shaded),
         black_level=(math.nan, math.nan) if tracker.black.value is None else (
-            tracker.black.value, tracker.black.sigma))
+            tracker.black.value, tracker.black.sigma),
+        gamma=tracker.decoder.gamma, gamma_found=math.isfinite(tracker.gamma_found))
