@@ -43,7 +43,7 @@ def tracker_parameters(bag, slider_roi=None, stator_roi=None, meters_per_pixel=N
     values['polarity'] = str(recorded.get('polarity', 'auto'))
     values['prime_frames'] = int(recorded.get('prime_frames', TrackerConfig().prime_frames))
     values['black_level'] = float(recorded.get('black_level', 0.0))
-    values['gamma'] = float(recorded.get('gamma', 0.0))
+    values['gamma'] = float(recorded.get('gamma', 0.0))  # the node's default: found
     if values['meters_per_pixel'] is None:
         raise BagError(f'{bag.path}: the bag has only camera frames and no recorded image '
                        'scale: give --meters-per-pixel (and --slider-roi/--stator-roi)')
