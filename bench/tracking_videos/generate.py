@@ -80,6 +80,7 @@ class Case:
     texture_std: float = 0.05       # moving texture ('textured' plate): relative std
     speckle_depth: float = 0.4      # speckle plate: 1 - depth + depth * speckle
     static: float = 0.0             # static window pattern over the view: relative std
+    gamma: float = 1.0              # the camera's encoding: full (dn / full) ** (1 / gamma)
     seed: int = 1
 
     @property
@@ -149,6 +150,8 @@ CASES = [
          'textured case', category='bright', mark='blob', polarity='bright', plate='textured'),
     Case('textured_fps15', 'the textured case at 15 fps (exposure half the period)',
          category='textured', plate='textured', fps=15.0),
+    Case('gamma', 'baseline from a camera that encodes with gamma 2.2 (sRGB-like video; '
+         'the CRB is the linear video\'s)', gamma=2.2),
 ]
 QUICK = ('baseline', 'bright_blob', 'textured', 'total_occlusion', 'exposure_full')
 
@@ -414,7 +417,10 @@ def add_noise(case, mean, rng):
     electrons = rng.poisson(np.maximum(mean, 0) / gain) + rng.normal(
         0, case.read_noise, mean.shape)
     dtype = np.uint8 if case.bits == 8 else np.uint16
-    return np.clip(np.rint(electrons * gain), 0, full_scale).astype(dtype)
+    dn = electrons * gain
+    if case.gamma != 1.0:  # encoded after the noise, as a camera's processing does
+        dn = full_scale * (np.clip(dn, 0, full_scale) / full_scale) ** (1.0 / case.gamma)
+    return np.clip(np.rint(dn), 0, full_scale).astype(dtype)
 
 
 def rois(case):
