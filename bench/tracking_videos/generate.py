@@ -151,7 +151,7 @@ CASES = [
     Case('textured_fps15', 'the textured case at 15 fps (exposure half the period)',
          category='textured', plate='textured', fps=15.0),
     Case('gamma', 'baseline from a camera that encodes with gamma 2.2 (sRGB-like video; '
-         'the CRB is the linear video\'s)', gamma=2.2),
+         "the CRB is the linear video's)", gamma=2.2),
 ]
 QUICK = ('baseline', 'bright_blob', 'textured', 'total_occlusion', 'exposure_full')
 
