@@ -198,9 +198,8 @@ def adopted_gamma(evidence: list[SmearEvidence | None]) -> float:
     A mark whose slope is over ``STRONG_T`` standard errors from 0 at gamma 1 decides, if every
     mark over ``SEEN_T`` has its gamma in ``ADOPTED`` and within ``AGREE`` of the others: their
     median. On the three video sets' 70 linear videos a plain mark's gamma was 0.95-1.22 where
-    its |t| was over 3 (up to 16: a long smear's tails, cut by the window, keep the slope off
-    0); on 40 of them encoded with 2.2, 27 were found at 2.08-2.30 (2.48-2.69 on the longest
-    smears), 13 not (README).
+    its |t| was over 3 (up to 16, on long smears); on 40 of them encoded with 2.2, 27 were
+    found at 2.08-2.30 (2.48-2.69 on the longest smears), 13 not (README).
     """
     seen = [e for e in evidence if e is not None and abs(e.t) >= SEEN_T]
     if not any(abs(e.t) >= STRONG_T for e in seen):
