@@ -25,16 +25,18 @@ from typing import NamedTuple
 
 import cv2
 import numpy as np
+from scipy import stats
+
+from microball_ros.core.tracking.profile import saturation_level
 
 GAMMA_RANGE = (0.2, 5.0)  # TrackerConfig.gamma's accepted range
 
 
 def full_scale(frame: np.ndarray) -> float:
     """Return the largest value of ``frame``'s pixel type (float: 1.0 if it stays within 1)."""
-    if frame.dtype == np.uint8:
-        return 255.0
-    if frame.dtype == np.uint16:
-        return 65535.0
+    known = saturation_level(frame.dtype)  # 8- and 16-bit
+    if known is not None:
+        return known
     if np.issubdtype(frame.dtype, np.integer):
         return float(np.iinfo(frame.dtype).max)
     return 1.0 if float(np.nanmax(frame)) <= 1.0 else 255.0
@@ -138,12 +140,13 @@ def smear_evidence(regions, positions, extents, polarity: str,
     length = np.array(lengths)
     sign = 1.0 if polarity == 'dark' else -1.0
     keep = np.ones(length.size, dtype=bool)
-    slope, t, residual = _slope(_log_areas(windows, 1.0, sign), length, keep)
+    as_read = _log_areas(windows, 1.0, sign)
+    slope, t, residual = _slope(as_read, length, keep)
     if residual is None:
         return None
     spread = 1.4826 * float(np.median(np.abs(residual[keep])))
     keep &= np.abs(residual) <= OUTLIER * spread + 1e-12
-    slope, t, _ = _slope(_log_areas(windows, 1.0, sign), length, keep)
+    slope, t, _ = _slope(as_read, length, keep)
     if not math.isfinite(t) or np.count_nonzero(keep) < MIN_FRAMES:
         return None
     if abs(t) < SEEN_T:  # the area holds in the frames as read: no gamma to look for
@@ -175,21 +178,19 @@ def _log_areas(windows, gamma: float, sign: float) -> np.ndarray:
 
 
 def _slope(values, lengths, keep):
-    """Return the slope of ``values`` on ``lengths`` (rows ``keep``), its t and residuals."""
+    """Return the slope of ``values`` on ``lengths`` (rows ``keep``), its t and residuals.
+
+    The residuals are of every row (inf where the value is not finite); (NaN, NaN, None) with
+    fewer than ``MIN_FRAMES`` rows or a single length.
+    """
     use = keep & np.isfinite(values)
-    if np.count_nonzero(use) < MIN_FRAMES:
+    if np.count_nonzero(use) < MIN_FRAMES or np.ptp(lengths[use]) == 0:
         return math.nan, math.nan, None
-    x, y = lengths[use], values[use]
-    x_mean = float(x.mean())
-    sxx = float(((x - x_mean) ** 2).sum())
-    if not sxx > 0:
-        return math.nan, math.nan, None
-    slope = float(((x - x_mean) * (y - y.mean())).sum()) / sxx
-    fitted = float(y.mean()) + slope * (lengths - x_mean)
+    fit = stats.linregress(lengths[use], values[use])
+    fitted = fit.intercept + fit.slope * lengths
     residual = np.where(np.isfinite(values), values - fitted, np.inf)
-    variance = float((residual[use] ** 2).sum()) / max(x.size - 2, 1)
-    error = math.sqrt(variance / sxx)
-    return slope, (slope / error if error > 0 else math.inf), residual
+    t = fit.slope / fit.stderr if fit.stderr > 0 else math.inf
+    return float(fit.slope), float(t), residual
 
 
 def adopted_gamma(evidence: list[SmearEvidence | None]) -> float:
