@@ -62,6 +62,7 @@ class SceneSpec:
     static_transmission: float = 0.0
     flicker: float = 0.0
     gradient: tuple = (0.2, 0.1)
+    vignette: float = 0.0  # the light falls off by this much from the middle to the corners
     drift: float = 0.0  # the x gradient goes from gradient[0] - drift to + drift over the video
     psf: float = 0.9
     gain: float = 20.0
@@ -173,6 +174,7 @@ def render(spec, n_frames, seed=0, covers=(), keep_expected=False, discs=(), pas
     xn = cols / (spec.width - 1) - 0.5
     yn = rows / (spec.height - 1) - 0.5
     light = np.outer(1 + spec.gradient[1] * yn, 1 + spec.gradient[0] * xn)
+    light *= 1.0 - 2.0 * spec.vignette * (xn[None, :] ** 2 + yn[:, None] ** 2)
     if spec.static_transmission:
         # Its own random stream: the other parts of a scene render as without it.
         window = _waves(np.random.default_rng(seed + 7919), 60, spec.static_transmission,

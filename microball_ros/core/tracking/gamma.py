@@ -16,8 +16,9 @@ saturation is still seen where it was (``saturation_level``).
 
 With gamma 0 (the default) ``Tracker.prime`` finds it from the priming frames: each plain
 plate's mark's ``smear_evidence`` (its deficit's area against its smear, over the frames
-decoded by trial gammas), then ``adopted_gamma`` (the marks agree on a gamma well away from 1,
-or it stays 1). A linear video is left as it is, and so is one whose marks cannot tell.
+decoded by trial gammas, each frame's profile divided by the plate's own light), then
+``adopted_gamma`` (the marks agree on a gamma well away from 1, or it stays 1). A linear video
+is left as it is, and so is one whose marks cannot tell.
 """
 
 import math
@@ -97,6 +98,7 @@ MIN_SPREAD = 2.0  # px between the least and the most smeared mark's length
 FLANK, PAD = 10, 4  # px: the baseline's columns each side; beyond the mark's length
 TRIALS = np.arange(0.5, 3.51, 0.25)  # the gammas the slope is found at (after gamma 1)
 OUTLIER = 4.0  # frames off the line by more than this many robust sigmas are left out
+CLEAR_FRAMES = 5  # the plate's light at a column: the median of at least this many frames
 
 
 class SmearEvidence(NamedTuple):
@@ -116,31 +118,40 @@ def smear_evidence(regions, positions, extents, polarity: str,
 
     ``regions``: the mark's rows of the ROI in each frame (as read); ``positions``: the mark's
     ROI column in each (NaN: not found); ``extents``: its smeared length (px). None with fewer
-    than ``MIN_FRAMES`` usable frames or lengths spread less than ``MIN_SPREAD``.
+    than ``MIN_FRAMES`` usable frames or lengths spread less than ``MIN_SPREAD``. The areas
+    are taken on the profiles divided by the plate's own light (``_flat``): a line between
+    the flanks cannot follow a vignette's curve, whose sag under a longer smear's wider window
+    took area away as if the camera encoded (a cross at a whole-frame exposure: 'gamma 1.6').
     """
-    windows, lengths = [], []
-    for region, position, extent in zip(regions, positions, extents, strict=True):
+    spans, lengths = [], []
+    width = regions[0].shape[1] if len(regions) else 0
+    clear = np.ones((len(regions), width), dtype=bool)  # the plate seen, not the mark
+    for n, (region, position, extent) in enumerate(zip(regions, positions, extents,
+                                                       strict=True)):
         if not (math.isfinite(position) and math.isfinite(extent)):
+            clear[n] = False
             continue
         half = 0.5 * extent + PAD
         lo, hi = int(math.floor(position - half)), int(math.ceil(position + half)) + 1
-        if lo - FLANK < 0 or hi + FLANK > region.shape[1]:
+        clear[n, max(lo, 0):max(hi, 0)] = False
+        if lo - FLANK < 0 or hi + FLANK > width:
             continue
-        window = np.asarray(region[:, lo - FLANK:hi + FLANK], dtype=np.float64)
-        if saturation is not None and float(window.max()) >= saturation:
+        if saturation is not None and float(
+                np.max(region[:, lo - FLANK:hi + FLANK])) >= saturation:
             continue
-        windows.append(window)
+        spans.append((n, lo - FLANK, hi + FLANK))
         lengths.append(float(extent))
-    if len(windows) < MIN_FRAMES or max(lengths) - min(lengths) < MIN_SPREAD:
+    if len(spans) < MIN_FRAMES or max(lengths) - min(lengths) < MIN_SPREAD:
         return None
-    scale = float(np.median([float(np.mean(w)) for w in windows]))
+    stack = np.asarray(regions, dtype=np.float64)
+    scale = float(np.median(stack.mean(axis=(1, 2))))
     if not scale > 0:
         return None
-    windows = [w / scale for w in windows]
+    stack /= scale
     length = np.array(lengths)
     sign = 1.0 if polarity == 'dark' else -1.0
     keep = np.ones(length.size, dtype=bool)
-    as_read = _log_areas(windows, 1.0, sign)
+    as_read = _log_areas(stack, clear, spans, 1.0, sign)
     slope, t, residual = _slope(as_read, length, keep)
     if residual is None:
         return None
@@ -154,8 +165,8 @@ def smear_evidence(regions, positions, extents, polarity: str,
     slopes = [(1.0, slope)]
     for trial in TRIALS:
         if trial != 1.0:
-            slopes.append((float(trial), _slope(_log_areas(windows, trial, sign), length,
-                                                keep)[0]))
+            areas = _log_areas(stack, clear, spans, trial, sign)
+            slopes.append((float(trial), _slope(areas, length, keep)[0]))
     slopes.sort()
     roots = [g0 - s0 * (g1 - g0) / (s1 - s0)
              for (g0, s0), (g1, s1) in zip(slopes[:-1], slopes[1:], strict=True)
@@ -164,16 +175,49 @@ def smear_evidence(regions, positions, extents, polarity: str,
     return SmearEvidence(float(gamma), float(t), int(np.count_nonzero(keep)))
 
 
-def _log_areas(windows, gamma: float, sign: float) -> np.ndarray:
-    """Return the log of each window's integrated relative deficit in light ** ``gamma``."""
-    areas = np.empty(len(windows))
-    for n, window in enumerate(windows):
-        profile = np.mean(window if gamma == 1.0 else window ** gamma, axis=0)
+def _flat(profiles: np.ndarray, clear: np.ndarray) -> np.ndarray:
+    """Return the plate's light along the ROI (NaN where too few frames show the plate).
+
+    ``profiles``: the frames' column profiles; ``clear``: where each frame shows the plate
+    (frames x columns: not the mark, nor any column of a frame it was not found in). Per
+    column, the median over those frames of each profile divided by its frame's light (a
+    flicker: the median of its clear columns against the light found before, twice); NaN
+    where under ``CLEAR_FRAMES`` frames show it.
+    """
+    enough = clear.sum(axis=0) >= CLEAR_FRAMES
+    flat = np.full(profiles.shape[1], np.nan)
+    if not np.any(enough):
+        return flat
+    seen = np.where(clear[:, enough], profiles[:, enough], np.nan)
+    lit = np.any(clear[:, enough], axis=1)  # a frame the mark was not found in: none clear
+    gains = np.ones((profiles.shape[0], 1))
+    for _ in range(3):
+        flat[enough] = np.nanmedian(seen / gains, axis=0)
+        gains[lit] = np.nanmedian(seen[lit] / flat[enough], axis=1, keepdims=True)
+    return flat
+
+
+def _log_areas(stack: np.ndarray, clear: np.ndarray, spans, gamma: float,
+               sign: float) -> np.ndarray:
+    """Return the log of each window's integrated relative deficit in light ** ``gamma``.
+
+    ``stack``: the frames' mark rows (frames x rows x columns); ``clear``: ``_flat``'s;
+    ``spans``: per window, its frame and its first and last column (``FLANK`` of plate each
+    side). The profile, divided
+    by the plate's light (``_flat``), is relative to a line through its two flanks; NaN
+    where that light is unknown (a mark that hardly moves covers its own columns).
+    """
+    profiles = np.mean(stack if gamma == 1.0 else stack ** gamma, axis=1)
+    flat = _flat(profiles, clear)
+    areas = np.full(len(spans), np.nan)
+    for n, (frame, lo, hi) in enumerate(spans):
+        profile = profiles[frame, lo:hi] / flat[lo:hi]  # NaN where the plate is never seen
         columns = np.r_[0:FLANK, profile.size - FLANK:profile.size]
         line = np.polyval(np.polyfit(columns, profile[columns], 1), np.arange(profile.size))
         inside = slice(FLANK, profile.size - FLANK)
         area = sign * float(np.sum(1.0 - profile[inside] / line[inside]))
-        areas[n] = math.log(area) if area > 0 else math.nan
+        if area > 0:
+            areas[n] = math.log(area)
     return areas
 
 
@@ -198,9 +242,9 @@ def adopted_gamma(evidence: list[SmearEvidence | None]) -> float:
 
     A mark whose slope is over ``STRONG_T`` standard errors from 0 at gamma 1 decides, if every
     mark over ``SEEN_T`` has its gamma in ``ADOPTED`` and within ``AGREE`` of the others: their
-    median. On the three video sets' 70 linear videos a plain mark's gamma was 0.95-1.22 where
-    its |t| was over 3 (up to 16, on long smears); on 40 of them encoded with 2.2, 27 were
-    found at 2.08-2.30 (2.48-2.69 on the longest smears), 13 not (README).
+    median. On the three video sets' 70 linear videos a plain mark's |t| was at most 5.1 (its
+    gamma 0.98-1.03 where over 3); 10 of the bench's videos encoded with 2.2 were found at
+    2.14-2.22, the longest smears too (README).
     """
     seen = [e for e in evidence if e is not None and abs(e.t) >= SEEN_T]
     if not any(abs(e.t) >= STRONG_T for e in seen):

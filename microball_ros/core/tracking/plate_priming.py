@@ -226,6 +226,9 @@ class PlatePriming:
         small = self._still is None and not still and moves_little(centroid[1], x)
         if small:
             self._still = SmallMotion.learn(regions, self.polarity, int(self.config.pad_px))
+            # The centroid's extents can mislead it (a long smear on a coarse texture, its
+            # window over most of the ROI): a mark the frames do not register still moves
+            small = self._still is not None
         self._still_at = float(np.nanmedian(centroid[0])) if (
             still and self._still is None) else None
         if self._still is None and not still and not small:
