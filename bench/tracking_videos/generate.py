@@ -152,6 +152,11 @@ CASES = [
          category='textured', plate='textured', fps=15.0),
     Case('gamma', 'baseline from a camera that encodes with gamma 2.2 (sRGB-like video; '
          "the CRB is the linear video's)", gamma=2.2),
+    Case('cross_full', 'the cross on a plain plate, exposure the whole frame period (1/30 s)',
+         mark='cross', exposure_fraction=1.0),
+    Case('textured_full_seed2', 'textured_full rendered from seed 2 (its texture has a coarse '
+         "dark patch on the stator's path)", category='textured', mark='cross',
+         plate='textured', exposure_fraction=1.0, seed=2),
 ]
 QUICK = ('baseline', 'bright_blob', 'textured', 'total_occlusion', 'exposure_full')
 
