@@ -101,7 +101,7 @@ def test_gamma_encoded_video_decoded_tracks_as_the_linear_video():
 def test_linear_frames_are_not_decoded(changes):
     # No false gamma: a cross, a bright blob and a textured plate (which the evidence leaves
     # out), linear, with the paper's smears; and a cross smeared over a whole frame's period
-    # (up to ~140 px) on a vignetted plate (its light 15 % down in the corners).
+    # (up to ~150 px) on a vignetted plate (its light 15 % down in the corners).
     changes = dict(changes)
     scene_changes = {k: changes.pop(k) for k in ('exposure', 'vignette') if k in changes}
     spec = SceneSpec(plates=plates(**changes),

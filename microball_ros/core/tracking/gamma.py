@@ -181,8 +181,8 @@ def _flat(profiles: np.ndarray, clear: np.ndarray) -> np.ndarray:
     ``profiles``: the frames' column profiles; ``clear``: where each frame shows the plate
     (frames x columns: not the mark, nor any column of a frame it was not found in). Per
     column, the median over those frames of each profile divided by its frame's light (a
-    flicker: the median of its clear columns against the light found before, twice); NaN
-    where under ``CLEAR_FRAMES`` frames show it.
+    flicker: the median of its clear columns against the plate's light, in three rounds);
+    NaN where under ``CLEAR_FRAMES`` frames show it.
     """
     enough = clear.sum(axis=0) >= CLEAR_FRAMES
     flat = np.full(profiles.shape[1], np.nan)
@@ -203,9 +203,9 @@ def _log_areas(stack: np.ndarray, clear: np.ndarray, spans, gamma: float,
 
     ``stack``: the frames' mark rows (frames x rows x columns); ``clear``: ``_flat``'s;
     ``spans``: per window, its frame and its first and last column (``FLANK`` of plate each
-    side). The profile, divided
-    by the plate's light (``_flat``), is relative to a line through its two flanks; NaN
-    where that light is unknown (a mark that hardly moves covers its own columns).
+    side). The profile, divided by the plate's light (``_flat``), is relative to a line
+    through its two flanks; NaN where that light is unknown (a mark that hardly moves covers
+    its own columns).
     """
     profiles = np.mean(stack if gamma == 1.0 else stack ** gamma, axis=1)
     flat = _flat(profiles, clear)
