@@ -35,6 +35,10 @@ SMEAR_JITTER = 0.4  # px: a long smear's plate tracking the priming frames less 
 SMEAR_BIAS = 0.5  # px: ... or registered further than this from the centroid on sharp frames
 SMEAR_SHARP = 16.0  # px: a priming frame whose path is shorter is sharp (``smear_verdict``)
 LONG_BLUR = 0.3  # of the ROI's width: a kernel longer than this is a long smear
+# least_smeared: where the centroid finds the mark in under 8 frames, the smear boxes serve if
+# their median length is over this much of the ROI (0.3 until stop 39 lost a textured cross
+# smeared up to 116 px, median 93 px in a 498 px ROI)
+BOXES_FROM = 0.1
 # BlurScale: the fitted over the predicted blur, over the last SCALE_FRAMES frames predicted
 # SCALE_LEAST px long or more, from SCALE_FROM of them, within SCALE_RANGE
 SCALE_FRAMES, SCALE_LEAST, SCALE_FROM, SCALE_RANGE = 15, 2.0, 5, (0.8, 1.25)
@@ -456,8 +460,9 @@ def least_smeared(measure, frames, regions, x, polarity):
     ``measure``: the centroid tracker's, on ``frames``; ``regions`` their ROIs, ``x`` the
     ROI's first column. The first 12 frames it finds the mark in; with long smears (their
     median extent over ``LONG_BLUR`` of the ROI, which hide a moving texture) the 12 least
-    smeared of all, or, when it finds fewer than 8, the 12 shortest ``smear_boxes``.
-    (None, None) when it finds fewer than 8 and the smears are not long.
+    smeared of all, or, when it finds fewer than 8, the 12 shortest ``smear_boxes`` (if
+    their median length is over ``BOXES_FROM`` of the ROI). (None, None) when it finds fewer
+    than 8 and the boxes do not serve.
     """
     width = regions[0].shape[1]
     found = []
@@ -469,7 +474,8 @@ def least_smeared(measure, frames, regions, x, polarity):
                 break
     if len(found) < 8:
         centres, sizes = smear_boxes(regions, polarity)
-        if np.count_nonzero(np.isfinite(sizes)) < 8 or not np.nanmedian(sizes) > LONG_BLUR * width:
+        if (np.count_nonzero(np.isfinite(sizes)) < 8
+                or not np.nanmedian(sizes) > BOXES_FROM * width):
             return None, None
         found = [(z, n, c) for n, (c, z) in enumerate(zip(centres, sizes, strict=True))
                  if math.isfinite(c)]
