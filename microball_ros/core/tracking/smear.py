@@ -36,8 +36,8 @@ SMEAR_BIAS = 0.5  # px: ... or registered further than this from the centroid on
 SMEAR_SHARP = 16.0  # px: a priming frame whose path is shorter is sharp (``smear_verdict``)
 LONG_BLUR = 0.3  # of the ROI's width: a kernel longer than this is a long smear
 # least_smeared: where the centroid finds the mark in under 8 frames, the smear boxes serve if
-# their median length is over this much of the ROI (0.3 until stop 39 lost a textured cross
-# smeared up to 116 px, median 93 px in a 498 px ROI)
+# their median length is over this much of the ROI (0.3 before stop 39: a textured cross
+# smeared up to 116 px, its boxes' median 93 px in a 498 px ROI, then learned no plate)
 BOXES_FROM = 0.1
 # BlurScale: the fitted over the predicted blur, over the last SCALE_FRAMES frames predicted
 # SCALE_LEAST px long or more, from SCALE_FROM of them, within SCALE_RANGE
