@@ -279,6 +279,27 @@ def test_mark_centre_is_the_centre_of_symmetry_when_a_texture_dip_moves_an_edge(
     assert model.mark_center(14.0) < 0.0  # the edges alone
 
 
+def test_mark_centre_stays_near_a_cross_whose_arms_reach_past_the_search():
+    """A cross whose arms (+-20 px) pass the reach, their depth near half the peak: near it.
+
+    Arms 0.3 deep with a ripple of 0.03 and a texture (0.05 before smoothing over 2 px), bar
+    0.6, centred at +1.5 px; reaches 10-18.5 px. Where both samples at the reach's end were
+    above the level, the line through them put the crossing anywhere: the old code was 7-944
+    px off in 9 of these 10 textures (a textured cross's plate 142 px off its mark, seed 5 of
+    the bench's textured_full). Within 1.5 px here (the texture moves an edge).
+    """
+    for seed in range(10):
+        model = PlateModel(512, 200.0)
+        u = (np.arange(512) - model.center).astype(float)
+        deficit = ((0.3 + 0.03 * np.sin(1.3 * u)) * (np.abs(u - 1.5) <= 20)
+                   + 0.3 * (np.abs(u - 1.5) <= 1.5))
+        deficit += gaussian_filter1d(np.random.default_rng(seed).normal(0, 0.05, u.size), 2.0)
+        model.values = gaussian_filter1d(deficit, 0.8)
+        model.spectrum = np.fft.rfft(model.values)
+        for reach in np.arange(10.0, 19.0, 0.5):
+            assert abs(model.mark_center(reach) - 1.5) < 1.5, (seed, reach)
+
+
 def test_texture_score_plain_versus_textured():
     plain, _ = render(n_frames=6, texture=0.0, static=0.0)
     rough, _ = render(n_frames=6, texture=0.03, static=0.0)
@@ -473,6 +494,35 @@ def test_a_mark_the_small_motion_cannot_register_is_learned_as_a_moving_one(
     error = x[reported] - truth[reported]
     assert np.count_nonzero(~reported) <= 1
     assert float(np.sqrt(np.mean(error ** 2))) <= 0.1
+
+
+def test_a_textured_plate_that_does_not_find_its_mark_is_dropped(textured_scene, monkeypatch):
+    """A learned plate that finds its mark in under 8 priming frames: the centroid measures.
+
+    On the bench's textured cross at a whole-frame exposure from seed 5, the plate's centre
+    was put 142 px off the mark: it found the mark in none of the 60 priming frames, was kept,
+    and lost 234 of 240 frames (the rest 92 px off). Here the learned plate is turned upside
+    down (a dark mark's plate made bright): it finds too few frames, so it is dropped and the
+    track is the centroid's, frame for frame.
+    """
+    frames, _ = textured_scene
+    learn = plate_priming.learn_plate
+
+    def inverted(*args, **kwargs):
+        learned = learn(*args, **kwargs)
+        if learned is not None:
+            learned.plate.values = -learned.plate.values
+            learned.plate.spectrum = np.fft.rfft(learned.plate.values)
+        return learned
+
+    monkeypatch.setattr(plate_priming, 'learn_plate', inverted)
+    roi = (0, 0, WIDTH, frames.shape[1])
+    tracker = Tracker({'mark': roi}, 1e-6, FPS, 0.5 / FPS)
+    tracker.prime(list(frames))
+    mark = tracker.marks['mark']
+    assert mark.plate is None and mark.texture >= plate_priming.TEXTURE_SCORE
+    x = tracked(frames, PlateMarkTracker, monkeypatch)
+    assert np.array_equal(x, tracked(frames, CentroidMarkTracker, monkeypatch), equal_nan=True)
 
 
 def test_the_texture_is_scored_on_smear_boxes_when_the_centroid_finds_few_frames():

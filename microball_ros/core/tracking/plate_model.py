@@ -146,9 +146,14 @@ class PlateModel:
 
     @staticmethod
     def _crossing(fine, u, index, level, side):
-        """Return u where ``fine`` crosses ``level`` between index and its outer neighbour."""
+        """Return u where ``fine`` crosses ``level`` between index and its outer neighbour.
+
+        At most the outer neighbour: where both are above the level (the mark reaches past
+        ``mark_center``'s reach, a cross's arm near the level), the line through them crossed
+        it anywhere (a textured cross's centre was put 142 px off its plate's mark).
+        """
         a, b = fine[index + side], fine[index]
-        t = (level - a) / (b - a) if b != a else 0.5
+        t = min(max((level - a) / (b - a), 0.0), 1.0) if b != a else 0.5
         return float(u[index + side] + t * (u[index] - u[index + side]))
 
     @staticmethod

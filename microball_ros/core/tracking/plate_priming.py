@@ -48,6 +48,9 @@ from microball_ros.core.tracking.still import StillMark, is_still
 # A plain plate's plate is kept if it reports every frame the centroid does over priming and
 # is priming.steadier than it by this margin.
 PLAIN_MARGIN = 0.95
+# A textured plate that finds its mark in fewer priming frames is dropped (its centre was put
+# 142 px off the mark, and it found none: stop 40)
+FOUND_LEAST = 8
 # The light expected at the mark is the median of its light in this many last frames found
 LIGHT_MEMORY = 5
 
@@ -262,6 +265,9 @@ class PlatePriming:
         elif self.plate is not None:
             self._relearn(regions, frames)
             tracked = self._track_priming(frames, self.measure)
+            if np.count_nonzero(np.isfinite(tracked[0])) < FOUND_LEAST:
+                self._forget()  # a plate that does not find its own mark: the centroid's
+                return
             self._offset, self._asymmetry, self._offset_sigma = edge_offset(
                 regions if self.flat is None else [r / self.flat for r in regions],
                 self.weights, tracked[0], tracked[2], self._outer,

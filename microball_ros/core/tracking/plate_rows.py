@@ -31,12 +31,14 @@ The texture under the mark moves with it, so where it puts the centre errs by on
 every frame, which the frames cannot tell but the plate can: ``edge_offset`` returns that
 error's standard error, two estimates in quadrature (conservative): the rows' jackknife
 (``jackknife_spread``) and the verdict again under random textures like the plate's beside
-the mark (``texture_spread``). On the blind sets' 45 textured marks (the tracker's per-frame
-errors against the truth) the positions' standard errors with it held 99 % of the errors
-within two of them, 77 % without (0.20 px on a fine speckle whose centre was 0.16 px off);
-on 45 noiseless synthetic plates of 3-10 % texture and 1-5 px grain (test_plate_rows) 91 %
-of the centres' errors were within two of it (the jackknife alone 64 %, the random textures
-alone 84 %).
+the mark (``texture_spread``). Both take the profile's crossings again too, for the share of
+the centre the edges leave there (fully developed speckle: the edges not trusted, and the
+spreads, which measured the verdict alone, were 0; a centre 0.17 px off got 0.025 px). On
+the blind sets' 45 textured marks (the tracker's per-frame errors against the truth) the
+positions' standard errors with it held 99 % of the errors within two of them, 77 % without
+(0.20 px on a fine speckle whose centre was 0.16 px off); on 45 noiseless synthetic plates
+of 3-10 % texture and 1-5 px grain (test_plate_rows) 91 % of the centres' errors were within
+two of it (the jackknife alone 64 %, the random textures alone 84 %).
 """
 
 import math
@@ -46,7 +48,7 @@ import warnings
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from microball_ros.core.tracking.plate_model import UPSAMPLE, fft_size
+from microball_ros.core.tracking.plate_model import UPSAMPLE, PlateModel, fft_size
 from microball_ros.core.tracking.template import kernel_spectrum, tukey
 
 REGULARISATION = 1e-3  # of the largest kernel power: the rows' deconvolution (PlateModel's)
@@ -82,11 +84,12 @@ def edge_offset(regions, weights, positions, kernels, extent: float, sign: float
 
     ``weights``: the tracker's row weights (the mark's rows are those above 0); the rest as
     ``row_plates``, with the positions the tracker reports. Offset 0 and asymmetry NaN if the
-    edges could not be measured; the offset is 0 too if they put the centre over ``most`` px
-    away (a mark that is not mirror-symmetric). Over ``MAX_MOVE`` px away, the edges are
-    looked for about the deficit's own centre of symmetry (``deficit_center``). A mark
-    without sharp edges (a blob) is put at that centre of symmetry, within ``MAX_MOVE`` + 1
-    px (a textured blob's half-depth mid-point was 0.47 px off on a 5 % texture; 0.15 px so).
+    edges could not be measured (the standard error then the profile's crossings'); the
+    offset is 0 too if they put the centre over ``most`` px away (a mark that is not
+    mirror-symmetric). Over ``MAX_MOVE`` px away, the edges are looked for about the
+    deficit's own centre of symmetry (``deficit_center``). A mark without sharp edges (a
+    blob) is put at that centre of symmetry, within ``MAX_MOVE`` + 1 px (a textured blob's
+    half-depth mid-point was 0.47 px off on a 5 % texture; 0.15 px so).
     The standard error: ``jackknife_spread`` and ``texture_spread`` in quadrature (two
     estimates of one error, from the rows and from a texture model: see the module), and the
     part of the verdict's move not applied (edges trusted in part, a move over ``most``).
@@ -102,13 +105,14 @@ def edge_offset(regions, weights, positions, kernels, extent: float, sign: float
     plates, origin = learned
     row_weights = np.asarray(weights, dtype=np.float64)[rows]
     offset, asymmetry, share, move = _verdict(plates, row_weights, origin, extent, most)
-    if not math.isfinite(asymmetry):
-        return EdgeOffset(0.0, asymmetry, math.nan)
+    edges = math.isfinite(asymmetry)
+    if not edges:  # the centre stays at the profile's crossings: their spreads alone
+        offset, share, move = 0.0, 0.0, math.nan
     # The profile's crossings keep what the verdict does not apply: that much of its move
     # is how far apart the two places it could be are (NaN: a still blob's, not measured)
-    unapplied = (1.0 - share) * abs(move)
-    spreads = [jackknife_spread(plates, row_weights, origin, extent, most),
-               texture_spread(plates, row_weights, origin, extent, most, sign)]
+    unapplied = (1.0 - share) * abs(move) if math.isfinite(move) else 0.0
+    spreads = [jackknife_spread(plates, row_weights, origin, extent, most, edges),
+               texture_spread(plates, row_weights, origin, extent, most, sign, edges)]
     known = [value for value in spreads if math.isfinite(value)]
     return EdgeOffset(offset, asymmetry, math.hypot(unapplied, *known) if known else math.nan)
 
@@ -148,17 +152,51 @@ def _verdict(plates, weights, origin, extent, most) -> tuple[float, float, float
     return center * trust, asymmetry, trust, center
 
 
+def crossings_center(plates: np.ndarray, weights: np.ndarray, origin: int,
+                     extent: float) -> float:
+    """Return the mid-point of the rows' profile's half-depth crossings (px from the origin).
+
+    The profile: the rows weighted by ``weights``; its crossings within ``extent`` of the
+    origin (``PlateModel.mark_center``). Where the centre is where the edges do not move it
+    (their asymmetry over ``ASYMMETRY_HIGH``), this is what a texture moves it by.
+    """
+    total = float(np.sum(weights))
+    model = PlateModel(plates.shape[1], plates.shape[1] / 2.0, center=origin)
+    model.values = (np.asarray(weights) @ plates) / (total if total > 0 else 1.0)
+    model.spectrum = np.fft.rfft(model.values)
+    return model.mark_center(extent)
+
+
+def _placed(plates, weights, origin, extent, most, crossings, edges=True) -> float:
+    """Return where the centre is put on ``plates``, px from where it is on the whole plates.
+
+    ``plate_center``'s offset, plus the part of the rows' crossings' move from ``crossings``
+    (the whole plates') the verdict does not replace (its share not applied): a texture moves
+    the centre as much there, and the verdict alone (0 for edges not trusted) hid it.
+    ``edges`` False: the crossings' move alone (the whole plates' edges were not found).
+    """
+    offset, share = 0.0, 0.0
+    if edges:
+        offset, _, share, _ = _verdict(plates, weights, origin, extent, most)
+    if share >= 1.0 or not math.isfinite(crossings):
+        return offset
+    moved = crossings_center(plates, weights, origin, extent) - crossings
+    return offset + (1.0 - share) * (moved if math.isfinite(moved) else 0.0)
+
+
 def jackknife_spread(plates: np.ndarray, weights: np.ndarray, origin: int, extent: float,
-                     most: float = MAX_MOVE) -> float:
-    """Return the standard error of ``plate_center``'s offset, from its rows (px).
+                     most: float = MAX_MOVE, edges: bool = True) -> float:
+    """Return the standard error of where ``edge_offset`` puts the centre, from its rows (px).
 
     The delete-one-group jackknife over ``JACKKNIFE_GROUPS`` contiguous bands of rows: the
-    verdict again without each band, the variances of the 4, 6 and 8 bands averaged. It sees
+    placement again without each band (``_placed``: the verdict, and the crossings where the
+    verdict does not replace them), the variances of the 4, 6 and 8 bands averaged. It sees
     the texture the mark's own rows hold (a fine speckle's 0.16 px), but bands a coarse
     texture joins from row to row are not independent: alone it was 1.2-2 times low on
     synthetic plates of 1-5 px grain. NaN if fewer rows than bands.
     """
     count = plates.shape[0]
+    crossings = crossings_center(plates, weights, origin, extent)
     variances = []
     for groups in JACKKNIFE_GROUPS:
         if count < groups:
@@ -167,23 +205,24 @@ def jackknife_spread(plates: np.ndarray, weights: np.ndarray, origin: int, exten
         for band in np.array_split(np.arange(count), groups):
             keep = np.ones(count, dtype=bool)
             keep[band] = False
-            values.append(plate_center(plates[keep], weights[keep], origin, extent, most)[0])
+            values.append(_placed(plates[keep], weights[keep], origin, extent, most,
+                                  crossings, edges))
         spread = np.asarray(values) - np.mean(values)
         variances.append((groups - 1) / groups * float(spread @ spread))
     return math.sqrt(float(np.mean(variances))) if variances else math.nan
 
 
 def texture_spread(plates: np.ndarray, weights: np.ndarray, origin: int, extent: float,
-                   most: float = MAX_MOVE, sign: float = 1.0) -> float:
-    """Return the standard error of ``plate_center``'s offset, from a model of the texture (px).
+                   most: float = MAX_MOVE, sign: float = 1.0, edges: bool = True) -> float:
+    """Return the standard error of where ``edge_offset`` puts the centre, from a texture model.
 
     The plate beside the mark (``STRIP`` px beyond ``extent``, both sides) is texture alone:
     its standard deviation and its correlation from one column, and one row, to the next
     give a Gaussian random field of the same level and grain (Gaussian-filtered noise). The
-    verdict again on the plates times ``TEXTURE_DRAWS`` such fields (a texture multiplies the
-    plate: a dark mark's deficit ``d`` becomes ``d + t (1 - d)``; ``sign`` -1 for a bright
-    mark's), against the verdict on the plates as they are: the RMS difference. A fixed seed:
-    the same plates give the same answer. NaN without the plate beside the mark.
+    placement (``_placed``) again on the plates times ``TEXTURE_DRAWS`` such fields (a
+    texture multiplies the plate: a dark mark's deficit ``d`` becomes ``d + t (1 - d)``;
+    ``sign`` -1 for a bright mark's), against the plates as they are: the RMS difference (px).
+    A fixed seed: the same plates give the same answer. NaN without the plate beside the mark.
     """
     columns = np.abs(np.arange(plates.shape[1]) - origin)
     beside = (columns >= extent + STRIP[0]) & (columns <= extent + STRIP[1])
@@ -196,14 +235,15 @@ def texture_spread(plates: np.ndarray, weights: np.ndarray, origin: int, extent:
                     np.concatenate([strip[1:].ravel() for strip in strips])),
              _grain(np.concatenate([strip[:, :-1].ravel() for strip in strips]),
                     np.concatenate([strip[:, 1:].ravel() for strip in strips]))]
-    base = plate_center(plates, weights, origin, extent, most)[0]
+    crossings = crossings_center(plates, weights, origin, extent)
+    base = _placed(plates, weights, origin, extent, most, crossings, edges)
     rng = np.random.default_rng(0)
     moved = []
     for _ in range(TEXTURE_DRAWS):
         field = gaussian_filter(rng.standard_normal(plates.shape), grain, mode='wrap')
         field *= level / float(field.std())
-        moved.append(plate_center(plates + field * (1.0 - sign * plates), weights, origin,
-                                  extent, most)[0] - base)
+        moved.append(_placed(plates + field * (1.0 - sign * plates), weights, origin, extent,
+                             most, crossings, edges) - base)
     return math.sqrt(float(np.mean(np.square(moved))))
 
 
