@@ -285,7 +285,7 @@ def test_mark_centre_stays_near_a_cross_whose_arms_reach_past_the_search():
     Arms 0.3 deep with a ripple of 0.03 and a texture (0.05 before smoothing over 2 px), bar
     0.6, centred at +1.5 px; reaches 10-18.5 px. Where both samples at the reach's end were
     above the level, the line through them put the crossing anywhere: the old code was 7-944
-    px off in 9 of these 10 textures (a textured cross's plate 142 px off its mark, seed 5 of
+    px off in each of these 10 textures (a textured cross's plate 142 px off its mark, seed 5 of
     the bench's textured_full). Within 1.5 px here (the texture moves an edge).
     """
     for seed in range(10):

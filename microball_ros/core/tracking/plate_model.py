@@ -21,6 +21,7 @@ from microball_ros.core.tracking.template import kernel_spectrum, tukey
 UPSAMPLE = 8  # the plate model's grid: 1/8 px
 ASYMMETRY_MOVE = 1.0  # px: PlateModel.mark_center's edges that far from the centre of symmetry
 ASYMMETRY_GAIN = 3.0  # ... and D that much less symmetric about them: the symmetry wins
+BEYOND_SAMPLES = 2.0  # PlateModel._crossing: at most this many grid samples past its samples
 # PlateModel.fit_clear: columns off the fit by CLIP noise are left out, in at most
 # CLEAR_ROUNDS rounds, while those left keep CLEAR_INFORMATION of the position's information
 CLIP, CLEAR_ROUNDS, CLEAR_INFORMATION = 4.0, 3, 0.5
@@ -148,12 +149,13 @@ class PlateModel:
     def _crossing(fine, u, index, level, side):
         """Return u where ``fine`` crosses ``level`` between index and its outer neighbour.
 
-        At most the outer neighbour: where both are above the level (the mark reaches past
-        ``mark_center``'s reach, a cross's arm near the level), the line through them crossed
-        it anywhere (a textured cross's centre was put 142 px off its plate's mark).
+        At most ``BEYOND_SAMPLES`` samples past the outer neighbour: where both are above the
+        level (the mark reaches past ``mark_center``'s reach, a cross's arm near the level),
+        the line through them crossed it anywhere (a textured cross's centre was put 142 px
+        off its plate's mark); a crossing just past the reach is kept (the blind set's t12).
         """
         a, b = fine[index + side], fine[index]
-        t = min(max((level - a) / (b - a), 0.0), 1.0) if b != a else 0.5
+        t = min(max((level - a) / (b - a), -BEYOND_SAMPLES), 1.0) if b != a else 0.5
         return float(u[index + side] + t * (u[index] - u[index + side]))
 
     @staticmethod
