@@ -2,6 +2,7 @@
 
 import os
 import pty
+import re
 import signal
 import subprocess
 import sys
@@ -170,8 +171,11 @@ def test_play_loops_until_ctrl_c(bag_with_an_unknown_type, ros_context):
             process.kill()
         harness.close()
     assert process.returncode == 0, err
-    assert out.count(f'played {COUNT} messages') >= 2
-    assert 'stopped after' in out
+    # The first round ended before the second began; Ctrl-C can come while the second's
+    # ``play`` is still returning (its line not yet printed: seen on a loaded machine)
+    assert out.count(f'played {COUNT} messages') >= 1
+    stopped = re.search(r'stopped after (\d+) messages', out)
+    assert stopped and int(stopped.group(1)) >= 2 * COUNT, out
     # Every round replays the bag from its start, in order (this subscriber may have joined
     # during the first round).
     indices = [m.frame_index for m in received]
