@@ -214,9 +214,11 @@ class CentroidPriming:
         The frames' own guesses (``voted_polarity``) when they agree; else the first frame
         the mark is found in (both polarities tried where its guess is unclear).
         """
-        if self.polarity is None:
+        if self.polarity is None:  # the frames ``measure`` would guess on
+            x, y, w, h = self.roi
             self.polarity = voted_polarity(
-                [roi_region(frame, self.roi, self.name) for frame in frames])
+                [frame[y:y + h, x:x + w] for frame in frames if frame.ndim == 2
+                 and x + w <= frame.shape[1] and y + h <= frame.shape[0]])
         for frame in frames:
             if self.polarity is not None:
                 break
