@@ -247,7 +247,7 @@ def test_on_speckle_the_standard_error_covers_the_profiles_crossings_too():
     # Where the edges are not trusted (asymmetry over ASYMMETRY_HIGH, or not found) the centre
     # stays at the profile's crossings, which the speckle moves: the spreads measured only the
     # edges' verdict (0 there) and were NaN without edges. The bench's speckle from seed 3 put
-    # the stator 0.17 px off with a standard error of 0.025 (0.13 now), the slider 0.29 px
+    # the stator 0.17 px off with a standard error of 0.07 (0.13 now), the slider 0.29 px
     # with none (0.16). Here 30 rectangles on fully developed speckle: measured 0.16 px RMS,
     # all within two standard errors (a median of 0.29 px); 60 % before, with NaN for none.
     rng = np.random.default_rng(0)
