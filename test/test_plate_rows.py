@@ -8,7 +8,6 @@ from scipy.ndimage import gaussian_filter
 from microball_ros.core.tracking import plate_rows
 from microball_ros.core.tracking.centroid import CentroidMarkTracker
 from microball_ros.core.tracking.plate import PlateMarkTracker
-from microball_ros.core.tracking.plate_model import PlateModel
 from microball_ros.core.tracking.plate_rows import (
     ASYMMETRY_HIGH,
     ASYMMETRY_LOW,
@@ -63,10 +62,7 @@ def crossings_center(deficit, origin):
     them by the mark's depth.
     """
     weights = np.clip(deficit[:, origin - 6:origin + 7].mean(axis=1), 0.0, None)
-    model = PlateModel(deficit.shape[1], deficit.shape[1] / 2.0, center=origin)
-    model.values = weights @ deficit / weights.sum()
-    model.spectrum = np.fft.rfft(model.values)
-    return model.mark_center(10.0)
+    return plate_rows.crossings_center(deficit, weights, origin, 10.0)
 
 
 def test_edges_of_a_clean_symmetric_mark_give_its_centre():

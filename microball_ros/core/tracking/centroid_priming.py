@@ -9,6 +9,7 @@ frames with ``measure`` (the subclass's).
 """
 
 from collections import deque
+import functools
 import math
 
 import numpy as np
@@ -121,6 +122,13 @@ class CentroidPriming:
         self._background.clear()
         self._plate.clear()
         self._plate_rows = self._plate_mean = None
+        x, y, w, h = self.roi
+
+        @functools.cache
+        def vote():  # on the raw frames ``measure`` would guess on: once, however often asked
+            return voted_polarity([frame[y:y + h, x:x + w] for frame in frames if frame.ndim == 2
+                                   and x + w <= frame.shape[1] and y + h <= frame.shape[0]])
+
         regions = None
         if self.config.static_background:
             regions = np.stack([roi_region(frame, self.roi, self.name) for frame in frames]
@@ -132,7 +140,7 @@ class CentroidPriming:
                     self._background.clear()
                 if self._background.inverse is None:
                     regions = None
-        self._find_polarity(frames)
+        self._find_polarity(frames, vote)
         if regions is not None:
             polarity = self.polarity
             first = self._background.inverse
@@ -143,10 +151,10 @@ class CentroidPriming:
                 self._background.clear()
                 if self.config.polarity == 'auto':
                     self.polarity = None  # found again, on the frames as they are
-                self._find_polarity(frames)
+                self._find_polarity(frames, vote)
             if self.polarity is None:  # the background took the mark away (a still mark)
                 self._background.clear()
-                self._find_polarity(frames)
+                self._find_polarity(frames, vote)
         if self.polarity is not None and len(frames) > 0:
             long, lost = self._smears_long(frames)
             if long or lost:
@@ -208,17 +216,15 @@ class CentroidPriming:
         self.polarity = polarity
         return np.array([m.extent_px if m.valid else math.nan for m in found], dtype=float)
 
-    def _find_polarity(self, frames) -> None:
+    def _find_polarity(self, frames, vote) -> None:
         """Learn the polarity (if not known); reset.
 
-        The frames' own guesses (``voted_polarity``) when they agree; else the first frame
-        the mark is found in (both polarities tried where its guess is unclear).
+        ``vote()``: the frames' own guesses (``voted_polarity``), used when they agree; else
+        the first frame the mark is found in (both polarities tried where its guess is
+        unclear).
         """
-        if self.polarity is None:  # the frames ``measure`` would guess on
-            x, y, w, h = self.roi
-            self.polarity = voted_polarity(
-                [frame[y:y + h, x:x + w] for frame in frames if frame.ndim == 2
-                 and x + w <= frame.shape[1] and y + h <= frame.shape[0]])
+        if self.polarity is None:
+            self.polarity = vote()
         for frame in frames:
             if self.polarity is not None:
                 break
