@@ -157,6 +157,9 @@ CASES = [
     Case('textured_full_seed2', 'textured_full rendered from seed 2 (its texture has a coarse '
          "dark patch on the stator's path)", category='textured', mark='cross',
          plate='textured', exposure_fraction=1.0, seed=2),
+    Case('textured_fps15_e07', 'the textured case at 15 fps, 0.7 of the period exposed (no '
+         'frame sharp: every frame refused before stop 41)', category='textured',
+         plate='textured', fps=15.0, exposure_fraction=0.7),
 ]
 QUICK = ('baseline', 'bright_blob', 'textured', 'total_occlusion', 'exposure_full')
 

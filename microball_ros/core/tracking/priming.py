@@ -157,7 +157,7 @@ def motion_jitter(tracks: list[np.ndarray], harmonics: int = HARMONICS) -> list[
     return [math.sqrt(float(r @ r) / dof) for r in (residuals(omega, y) for y in data)]
 
 
-def scatter_scale(positions: np.ndarray, found: list) -> float:
+def scatter_scale(positions: np.ndarray, found: list, harmonics: int = HARMONICS) -> float:
     """Return how much to scale the standard errors by: the priming track's scatter over them.
 
     ``positions``: the priming frames' track (NaN: none), ``found`` its measurements. A
@@ -168,10 +168,10 @@ def scatter_scale(positions: np.ndarray, found: list) -> float:
     fit's failure, not the tracker's: 1). Measured on the centroid behind a window pattern
     (the bench's ``static_bright``): 2.47 on the priming frames, 2.57 over the whole video
     (the slider; the stator 3.28, whose frames were 49 % within two standard errors at a
-    limit of 2.5).
+    limit of 2.5). ``harmonics``: the motion's (``motion_jitter``).
     """
     sigmas = np.array([m.sigma_px for m in found if m.valid])
-    jitter = motion_jitter([positions])[0]
+    jitter = motion_jitter([positions], harmonics)[0]
     if sigmas.size < 8 or not math.isfinite(jitter) or not np.all(np.isfinite(sigmas)):
         return 1.0
     ratio = jitter / float(np.sqrt(np.mean(sigmas ** 2)))

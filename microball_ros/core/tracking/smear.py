@@ -18,6 +18,7 @@ five frames per period.
 """
 
 from collections import deque
+from collections.abc import Callable
 import math
 import statistics
 import warnings
@@ -34,6 +35,9 @@ OUTLIER_PX = 3.0  # a centre further than this (and 3.5 robust sigmas) from the 
 SMEAR_JITTER = 0.4  # px: a long smear's plate tracking the priming frames less steadily: refused
 SMEAR_BIAS = 0.5  # px: ... or registered further than this from the centroid on sharp frames
 SMEAR_SHARP = 16.0  # px: a priming frame whose path is shorter is sharp (``smear_verdict``)
+# ... and without 3 sharp frames the least smeared of paths up to this serve (stop 41: at 15 fps
+# with 0.6-0.8 of the period exposed the sharpest were 13-26 px and every frame was refused)
+REGISTER_PATH = 48.0
 LONG_BLUR = 0.3  # of the ROI's width: a kernel longer than this is a long smear
 # least_smeared: where the centroid finds the mark in under 8 frames, the smear boxes serve if
 # their median length is over this much of the ROI (0.3 before stop 39: a textured cross
@@ -429,17 +433,23 @@ def path_range(blur: float, curve: float, reach: float = 0.0) -> tuple[float, fl
     return min(values) - reach, max(values) + reach
 
 
-def smear_verdict(tracked: np.ndarray, centroid: np.ndarray, motion: PeriodicMotion) -> bool:
+def smear_verdict(tracked: np.ndarray, centroid: Callable[[int], float],
+                  motion: PeriodicMotion) -> bool:
     """Return True if a long smear's learned plate can be trusted, from its priming track.
 
-    ``tracked`` and ``centroid``: the priming frames' positions (ROI columns, NaN: none) by
-    the learned plate and by the centroid tracker. A plate learned from long smears can be
-    badly learned or registered pixels off: the track's scatter about a smooth periodic
-    motion (``motion_jitter``, two harmonics: more alias at five frames per period) shows
-    the first, its mean difference from the centroid's over the sharp frames (the path
-    shorter than ``SMEAR_SHARP`` px; the centroid is exact on average) the second. False
-    above ``SMEAR_JITTER`` or ``SMEAR_BIAS`` px, with fewer than 3 sharp frames tracked by
-    both, or with fewer than half the frames tracked.
+    ``tracked``: the priming frames' positions (ROI columns, NaN: none) by the learned plate;
+    ``centroid(n)``: the centroid tracker's position of priming frame ``n`` measured on its
+    own (NaN: not found). A plate learned from long smears can be badly learned or
+    registered pixels off: the track's scatter about a smooth periodic motion
+    (``motion_jitter``, two harmonics: more alias at five frames per period) shows the first,
+    its mean difference from the centroid's over the least smeared frames the second. Those
+    are the frames whose path is shorter than ``SMEAR_SHARP`` px if the centroid finds 3 of
+    them (it is exact on average there), else the 3 least smeared it finds with paths up to
+    ``REGISTER_PATH`` px: a texture pulls the centroid of a longer smear further (0.4-0.8 px
+    at 22-27 px, 15 fps, 0.7 of the period exposed), so the bound, ``SMEAR_BIAS`` px, grows
+    in proportion to the longest path over ``SMEAR_SHARP``. False above it or above
+    ``SMEAR_JITTER``, with fewer than 3 such frames, or with fewer than half the frames
+    tracked.
     """
     count = tracked.size
     if np.count_nonzero(np.isfinite(tracked)) < 0.5 * count:
@@ -447,11 +457,20 @@ def smear_verdict(tracked: np.ndarray, centroid: np.ndarray, motion: PeriodicMot
     if not motion_jitter([tracked], 2)[0] <= SMEAR_JITTER:
         return False
     _, kernels = motion.kernels(np.arange(count))
-    sharp = (kernels[:, 0] + 0.25 * np.abs(kernels[:, 1]) < SMEAR_SHARP) & np.isfinite(
-        centroid) & np.isfinite(tracked)
-    if np.count_nonzero(sharp) < 3:
+    paths = kernels[:, 0] + 0.25 * np.abs(kernels[:, 1])
+    apart: list[float] = []
+    longest = 0.0
+    for n in np.argsort(paths, kind='stable'):
+        if paths[n] > REGISTER_PATH or (len(apart) >= 3 and paths[n] >= SMEAR_SHARP):
+            break
+        if math.isfinite(tracked[n]):
+            found = centroid(int(n))
+            if math.isfinite(found):
+                apart.append(float(tracked[n]) - found)
+                longest = float(paths[n])
+    if len(apart) < 3:
         return False
-    return bool(abs(float(np.mean(tracked[sharp] - centroid[sharp]))) <= SMEAR_BIAS)
+    return bool(abs(float(np.mean(apart))) <= SMEAR_BIAS * max(1.0, longest / SMEAR_SHARP))
 
 
 def least_smeared(measure, frames, regions, x, polarity):
