@@ -910,6 +910,36 @@ def test_periodic_motion_of_long_smears_gives_positions_and_kernels():
             assert central < 0.85 * abs(exact[1])
 
 
+def test_a_sinusoids_kernels_in_its_own_path_shapes_are_its_velocity_and_acceleration():
+    """With ``kappa`` (template.path_knots) a sinusoid's kernels are exact.
+
+    Not a least-squares fit: blur the mid-exposure velocity times the exposure, curvature half
+    the acceleration times its square (exposure 0.7 of the period at 5.08 frames per period),
+    from the motion fitted to noise-free centres, from three positions (``local_kernel``) and
+    from the second difference of exposure averages (``motion_curvatures``, which without the
+    frequency is 15 % short here).
+    """
+    omega, fraction, t = 2 * math.pi * 2.95 / 15.0, 0.7, np.arange(60.0)
+    kappa = omega * fraction
+    truth = _exposure_mean(t, fraction, omega)
+    motion = fit_motion(truth, fraction)
+    assert motion is not None and motion.turn == pytest.approx(kappa, rel=1e-6)
+    _, kernels = motion.kernels(t, kappa)
+    velocity = 200.0 * omega * np.sin(omega * t)  # px/frame, of 250 - 200 cos(omega t)
+    acceleration = 200.0 * omega ** 2 * np.cos(omega * t)
+    assert np.allclose(kernels[:, 0], np.abs(velocity) * fraction, rtol=0, atol=1e-3)
+    assert np.allclose(kernels[:, 1], acceleration * fraction ** 2 / 2, rtol=0, atol=1e-3)
+    for n in (3, 11, 22):
+        local = local_kernel(truth[n - 1], truth[n], truth[n + 1], omega, fraction, kappa)
+        assert local == pytest.approx((abs(velocity[n]) * fraction,
+                                       acceleration[n] * fraction ** 2 / 2), abs=1e-6)
+    curvatures = motion_curvatures(truth, np.full(t.size, np.nan), fraction, omega)
+    assert np.allclose(curvatures[1:-1], acceleration[1:-1] * fraction ** 2 / 2, rtol=0,
+                       atol=1e-9)
+    plain = motion_curvatures(truth, np.full(t.size, np.nan), fraction)
+    assert np.allclose(plain[1:-1] / curvatures[1:-1], 0.85, atol=0.01)
+
+
 def test_path_range_of_a_kernel():
     """The quadratic path's extent: its ends, and its turning point when inside."""
     assert path_range(100.0, 0.0) == pytest.approx((-50.0, 50.0))

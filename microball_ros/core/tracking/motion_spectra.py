@@ -1,35 +1,65 @@
 """The exposure's motion kernel in frequency, for core.tracking.plate_model's fits.
 
-A quadratic path (blur ``L``, curvature ``Q``, as core.tracking.template) as ``SEGMENTS``
+A quadratic path (blur ``L``, curvature ``Q``, as core.tracking.template), or a known
+sinusoid's (``kappa``: its turn over the exposure, template.path_knots), as ``SEGMENTS``
 straight segments of equal duration: ``kernel_spectra`` (several kernels, shifted),
 ``kernel_derivatives`` (the spectrum and its d/dblur, d/dcurve), and the private parts the
 plate fit calls every frame (``kernel_parts``, ``smears``), kept fast: phases as coarse
 times fine turns (``_turns``), one exponential per segment end (``_by_ends``).
 """
 
+import functools
 import math
+from typing import NamedTuple
 
 import numpy as np
 
-from microball_ros.core.tracking.template import SEGMENTS
-
-_U = np.linspace(-0.5, 0.5, SEGMENTS + 1)
-_U2 = _U * _U - 1.0 / 12.0
-_MID_L = (_U[1:] + _U[:-1]) / 2.0 - float(np.mean((_U[1:] + _U[:-1]) / 2.0))
-_MID_Q = (_U2[1:] + _U2[:-1]) / 2.0 - float(np.mean((_U2[1:] + _U2[:-1]) / 2.0))
-_WIDTH_L = np.diff(_U)
-_WIDTH_Q = np.diff(_U2)
+from microball_ros.core.tracking.template import SEGMENTS, path_knots
 
 
-# The segments' ends, as the mids (both less the mean mid): the kernel is zero-mean
-_ENDS = np.array([_U - float(np.mean((_U[1:] + _U[:-1]) / 2.0)),
-                  _U2 - float(np.mean((_U2[1:] + _U2[:-1]) / 2.0))])
-_WIDTHS = np.array([_WIDTH_L, _WIDTH_Q])
+class _Basis(NamedTuple):
+    """A path's segments, per unit blur (``_l``) and curvature (``_q``): mids, widths, ends."""
+
+    mid_l: np.ndarray
+    mid_q: np.ndarray
+    width_l: np.ndarray
+    width_q: np.ndarray
+    ends: np.ndarray  # the segments' ends, as the mids (both less the mean mid): zero-mean
+    widths: np.ndarray
+    phase_weights: np.ndarray
+    sinc_weights: np.ndarray
+
+
+def _make_basis(u: np.ndarray, u2: np.ndarray) -> _Basis:
+    """Return the segments of the path ``blur u + curve u2`` (``u``, ``u2`` at their ends)."""
+    mid_l = (u[1:] + u[:-1]) / 2.0 - float(np.mean((u[1:] + u[:-1]) / 2.0))
+    mid_q = (u2[1:] + u2[:-1]) / 2.0 - float(np.mean((u2[1:] + u2[:-1]) / 2.0))
+    width_l, width_q = np.diff(u), np.diff(u2)
+    ends = np.array([u - float(np.mean((u[1:] + u[:-1]) / 2.0)),
+                     u2 - float(np.mean((u2[1:] + u2[:-1]) / 2.0))])
+    return _Basis(mid_l, mid_q, width_l, width_q, ends, np.array([width_l, width_q]),
+                  np.array([np.full(SEGMENTS, 1.0), mid_l, mid_q]) / SEGMENTS,
+                  np.array([0.5 * width_l, 0.5 * width_q]) / SEGMENTS)
+
+
+_QUADRATIC = _make_basis(*path_knots(0.0))
+_ENDS = _QUADRATIC.ends  # the quadratic path's segment ends (blur, curvature rows)
+
+
+@functools.lru_cache(maxsize=32)
+def _sinusoid_basis(kappa: float) -> _Basis:
+    """Return ``_basis`` of a sinusoid's path (kept: a tracker has one or two)."""
+    return _make_basis(*path_knots(kappa))
+
+
+def _basis(kappa: float) -> _Basis:
+    """Return the segments of the path for ``kappa`` (template.path_knots; 0: quadratic)."""
+    return _QUADRATIC if kappa == 0.0 else _sinusoid_basis(float(kappa))
+
+
 ENDS_FROM = 1e-3  # _by_ends: its rounding error over the spectrum, at most 1e-16 / this
 
 
-_PHASE_WEIGHTS = np.array([np.full(SEGMENTS, 1.0), _MID_L, _MID_Q]) / SEGMENTS
-_SINC_WEIGHTS = np.array([0.5 * _WIDTH_L, 0.5 * _WIDTH_Q]) / SEGMENTS
 _TINY = 1e-100  # stands for 0 in a segment's half-width or at k = 0: sin(z) / z is then 1
 _RANGE = np.arange(4096, dtype=float)  # _turns' fine and coarse steps (k.size up to 16 M)
 TURNS_FROM = 256  # _turns: from this many frequencies, as coarse times fine turns
@@ -109,18 +139,20 @@ def _by_ends(k, widths) -> bool:
     return k.size > 1 and float(np.abs(widths).min()) * float(k[1]) >= ENDS_FROM
 
 
-def kernel_parts(k, mik, k_safe, blur, curve, shift=0.0):
+def kernel_parts(k, mik, k_safe, blur, curve, shift=0.0, kappa=0.0):
     """Return rows: the kernel's spectrum, its d/dx, d/dblur, d/dcurve (``kernel_derivatives``).
 
-    ``mik``, ``k_safe``: from ``frequencies(k)``; ``shift``: the kernel moved that far (px).
+    ``mik``, ``k_safe``: from ``frequencies(k)``; ``shift``: the kernel moved that far (px);
+    ``kappa``: a sinusoidal path's turn over the exposure (template.path_knots; 0: quadratic).
     """
+    basis = _basis(kappa)
     if blur == 0.0:
-        return _shifted(_kernel_parts_at_rest(k, mik, curve), mik, shift)
-    ends = blur * _ENDS[0] + curve * _ENDS[1]
+        return _shifted(_kernel_parts_at_rest(k, mik, curve, basis), mik, shift)
+    ends = blur * basis.ends[0] + curve * basis.ends[1]
     widths = ends[1:] - ends[:-1]
     if _by_ends(k, widths):
-        return _kernel_parts_by_ends(k, mik, k_safe, ends + shift, widths)
-    return _shifted(_kernel_parts_by_segments(k, mik, k_safe, blur, curve), mik, shift)
+        return _kernel_parts_by_ends(k, mik, k_safe, ends + shift, widths, basis)
+    return _shifted(_kernel_parts_by_segments(k, mik, k_safe, blur, curve, basis), mik, shift)
 
 
 def _shifted(parts, mik, shift):
@@ -130,10 +162,10 @@ def _shifted(parts, mik, shift):
     return parts
 
 
-def _kernel_parts_by_segments(k, mik, k_safe, blur, curve):
+def _kernel_parts_by_segments(k, mik, k_safe, blur, curve, basis=_QUADRATIC):
     """Return ``kernel_parts`` from the segments' mids and half-widths (no ``_by_ends``)."""
-    mid = blur * _MID_L + curve * _MID_Q
-    half = 0.5 * (blur * _WIDTH_L + curve * _WIDTH_Q)
+    mid = blur * basis.mid_l + curve * basis.mid_q
+    half = 0.5 * (blur * basis.width_l + curve * basis.width_q)
     half[np.abs(half) < _TINY] = _TINY
     sinc, slope = _sinc_parts(half, k, k_safe)
     rotor = _turns(-mid, k)
@@ -141,8 +173,8 @@ def _kernel_parts_by_segments(k, mik, k_safe, blur, curve):
     slope = rotor * slope
     parts = np.empty((4, k.size), complex)
     # The spectrum, and its parts moved by the segments' mids and changed by their widths.
-    np.matmul(_PHASE_WEIGHTS, common, out=parts[1:])
-    width = _SINC_WEIGHTS @ slope
+    np.matmul(basis.phase_weights, common, out=parts[1:])
+    width = basis.sinc_weights @ slope
     width *= k
     parts[2:] *= mik
     parts[2:] += width
@@ -151,12 +183,12 @@ def _kernel_parts_by_segments(k, mik, k_safe, blur, curve):
     return parts
 
 
-def _kernel_parts_by_ends(k, mik, k_safe, ends, widths):
+def _kernel_parts_by_ends(k, mik, k_safe, ends, widths, basis=_QUADRATIC):
     """Return ``kernel_parts`` from the segments' ``ends`` and ``widths`` (``_by_ends``).
 
     With ``T_s = (e_s - e_s+1) / (i k w_s)`` (``e_j = exp(-i k x_j)``), the spectrum is the
     mean of ``T_s``; ``dT_s/dx_s = (T_s - e_s) / w_s``, ``dT_s/dx_s+1 = (e_s+1 - T_s) / w_s``,
-    and ``dx_j/dblur``, ``dx_j/dcurve`` are the ends' rows of ``_ENDS``. Every part is then a
+    and ``dx_j/dblur``, ``dx_j/dcurve`` are the ends' rows of ``basis.ends``. Every part is then a
     sum over the ends' exponentials, some over ``i k``: two small matrix products (of 3 and 2
     rows: BLAS's gemm; one row would be its gemv, which OpenBLAS runs on a second thread from
     about 4096 elements, spinning through every frame: see ``smears``).
@@ -165,13 +197,13 @@ def _kernel_parts_by_ends(k, mik, k_safe, ends, widths):
     over = np.zeros((3, SEGMENTS + 1))  # times e, over i k: the spectrum and the T_s parts
     over[0, :-1] = inv
     over[0, 1:] -= inv
-    scaled = _WIDTHS * (inv * inv)
+    scaled = basis.widths * (inv * inv)
     over[1:, :-1] -= scaled
     over[1:, 1:] += scaled
     direct = np.zeros((2, SEGMENTS + 1))  # times e: the e_j parts
     direct[:, 1:] = inv
     direct[:, :-1] -= inv
-    direct *= _ENDS / SEGMENTS
+    direct *= basis.ends / SEGMENTS
     turns = _turns(-ends, k)
     parts = np.empty((4, k.size), complex)
     np.matmul(over, turns, out=parts[1:])
@@ -184,20 +216,21 @@ def _kernel_parts_by_ends(k, mik, k_safe, ends, widths):
     return parts
 
 
-def kernels_parts(k, mik, k_safe, blurs, curves):
+def kernels_parts(k, mik, k_safe, blurs, curves, kappa=0.0):
     """Return ``kernel_parts`` of several kernels (frames x 4 x k), none with blur 0."""
-    mid = np.outer(blurs, _MID_L)
-    mid += np.outer(curves, _MID_Q)
-    half = np.outer(blurs, 0.5 * _WIDTH_L)
-    half += np.outer(curves, 0.5 * _WIDTH_Q)
+    basis = _basis(kappa)
+    mid = np.outer(blurs, basis.mid_l)
+    mid += np.outer(curves, basis.mid_q)
+    half = np.outer(blurs, 0.5 * basis.width_l)
+    half += np.outer(curves, 0.5 * basis.width_q)
     half[np.abs(half) < _TINY] = _TINY
     sinc, slope = _sinc_parts(half, k, k_safe)
     rotor = _turns(-mid, k)
     common = rotor * sinc
     slope = rotor * slope
     parts = np.empty((len(mid), 4, k.size), complex)
-    np.matmul(_PHASE_WEIGHTS, common, out=parts[:, 1:])
-    width = _SINC_WEIGHTS @ slope
+    np.matmul(basis.phase_weights, common, out=parts[:, 1:])
+    width = basis.sinc_weights @ slope
     width *= k
     parts[:, 2:] *= mik
     parts[:, 2:] += width
@@ -206,14 +239,14 @@ def kernels_parts(k, mik, k_safe, blurs, curves):
     return parts
 
 
-def _kernel_parts_at_rest(k, mik, curve):
+def _kernel_parts_at_rest(k, mik, curve, basis=_QUADRATIC):
     """Return ``kernel_parts`` for blur 0, rounded exactly as the fits have always had it.
 
     d/dblur is 0 there (the kernel is even in the blur), so what a Gauss-Newton step from
     blur 0 does is decided by the rounding of that 0; kept as it was, the fits are too.
     """
-    mid = curve * _MID_Q
-    z = np.outer(0.5 * (curve * _WIDTH_Q), k)
+    mid = curve * basis.mid_q
+    z = np.outer(0.5 * (curve * basis.width_q), k)
     rotor = np.exp(np.outer(mid, mik))
     sinc = np.sinc(z * (1.0 / np.pi))
     d_sinc = rotor * ((np.cos(z) - sinc) / np.where(np.abs(z) < 1e-12, 1.0, z)) * k
@@ -221,27 +254,29 @@ def _kernel_parts_at_rest(k, mik, curve):
     parts = np.empty((4, k.size), complex)
     parts[0] = common.mean(axis=0)
     parts[1] = parts[0] * mik
-    parts[2] = (common * (_MID_L[:, None] * mik)
-                + d_sinc * (0.5 * _WIDTH_L)[:, None]).mean(axis=0)
-    parts[3] = (common * (_MID_Q[:, None] * mik)
-                + d_sinc * (0.5 * _WIDTH_Q)[:, None]).mean(axis=0)
+    parts[2] = (common * (basis.mid_l[:, None] * mik)
+                + d_sinc * (0.5 * basis.width_l)[:, None]).mean(axis=0)
+    parts[3] = (common * (basis.mid_q[:, None] * mik)
+                + d_sinc * (0.5 * basis.width_q)[:, None]).mean(axis=0)
     return parts
 
 
-def kernel_derivatives(k: np.ndarray, blur: float, curve: float):
+def kernel_derivatives(k: np.ndarray, blur: float, curve: float, kappa: float = 0.0):
     """Return the motion kernel's spectrum (as template.kernel_spectrum) and d/dblur, d/dcurve.
 
     The kernel is the distribution of ``blur u + curve (u^2 - 1/12)``, ``u`` uniform in
-    [-1/2, 1/2], as ``SEGMENTS`` straight segments of equal duration.
+    [-1/2, 1/2] (or with ``kappa``, a sinusoid's path: template.path_knots), as ``SEGMENTS``
+    straight segments of equal duration.
     """
-    spectrum, _, d_blur, d_curve = kernel_parts(k, *frequencies(k), blur, curve)
+    spectrum, _, d_blur, d_curve = kernel_parts(k, *frequencies(k), blur, curve, 0.0, kappa)
     return spectrum, d_blur, d_curve
 
 
-def smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
+def smears(k, mik, k_safe, blurs, curves, shifts, kappa=0.0) -> np.ndarray:
     """Return the spectra of kernels (rows, as ``kernel_spectra``); ``frequencies(k)``."""
-    ends = np.outer(blurs, _ENDS[0])
-    ends += np.outer(curves, _ENDS[1])
+    basis = _basis(kappa)
+    ends = np.outer(blurs, basis.ends[0])
+    ends += np.outer(curves, basis.ends[1])
     ends += np.asarray(shifts, dtype=float)[:, None]
     widths = ends[:, 1:] - ends[:, :-1]
     if _by_ends(k, widths):  # summed as arrays: one weighted row of them would be BLAS's gemv,
@@ -253,11 +288,11 @@ def smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
         spectra /= (1j * SEGMENTS) * k_safe
         spectra[:, 0] = 1.0  # k = 0
         return spectra
-    mid = np.outer(blurs, _MID_L)
-    mid += np.outer(curves, _MID_Q)
+    mid = np.outer(blurs, basis.mid_l)
+    mid += np.outer(curves, basis.mid_q)
     mid += np.asarray(shifts, dtype=float)[:, None]
-    half = np.outer(blurs, 0.5 * _WIDTH_L)
-    half += np.outer(curves, 0.5 * _WIDTH_Q)
+    half = np.outer(blurs, 0.5 * basis.width_l)
+    half += np.outer(curves, 0.5 * basis.width_q)
     half[np.abs(half) < _TINY] = _TINY
     rotor = _turns(-mid, k)
     rotor *= _sinc_parts(half, k, k_safe, slope=False)[0]
@@ -265,6 +300,9 @@ def smears(k, mik, k_safe, blurs, curves, shifts) -> np.ndarray:
 
 
 def kernel_spectra(k: np.ndarray, blurs: np.ndarray, curves: np.ndarray,
-                   shifts: np.ndarray) -> np.ndarray:
-    """Return the spectra of several kernels (rows), each shifted by ``shifts`` (px)."""
-    return smears(k, *frequencies(k), blurs, curves, shifts)
+                   shifts: np.ndarray, kappa: float = 0.0) -> np.ndarray:
+    """Return the spectra of several kernels (rows), each shifted by ``shifts`` (px).
+
+    ``kappa``: a sinusoidal path's turn over the exposure (template.path_knots; 0: quadratic).
+    """
+    return smears(k, *frequencies(k), blurs, curves, shifts, kappa)

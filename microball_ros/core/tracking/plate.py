@@ -61,8 +61,9 @@ averaged over the exposure. The tracker
    quadratic fit did; the next frame is then predicted as after a loss.
 
 Long smears (core.tracking.smear: a path over ``LONG_BLUR`` of the ROI) start step 1 from a
-periodic motion fitted to the smears, and search a bank of its kernels; the plate is kept only
-if its priming track passes ``smear_verdict``, else every frame is NaN. A mark still over the
+periodic motion fitted to the smears, and search a bank of its kernels; their kernels are the
+motion's own paths, a sinusoid's (template.path_knots), not quadratic ones; the plate is kept
+only if its priming track passes ``smear_verdict``, else every frame is NaN. A mark still over the
 priming frames learns no plate: the centroid measures it, or core.tracking.still on a texture;
 one moving less than its own width neither (core.tracking.small). Once such a mark moves, the
 next ``prime_frames`` frames are gathered and it is learned again from them (``_gather``).
@@ -201,7 +202,8 @@ class PlateMarkTracker(PlatePriming):
                           cfg.saturation_level))
         prediction, lost = self._predictor.predict(), self._predictor.lost()
         kernel = predicted_kernel(prediction, self._motion or self._periodic,
-                                  self.exposure_fraction)
+                                  self.exposure_fraction,
+                                  0.0 if self.plate is None else self.plate.kappa)
         gated = prediction if prediction is not None and math.isfinite(prediction.spread) \
             else None
         self._predicted_blur = math.nan

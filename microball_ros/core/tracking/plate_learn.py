@@ -78,7 +78,8 @@ def agree(positions: np.ndarray, extents: np.ndarray, found: np.ndarray) -> np.n
 
 
 def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction: float,
-                long_smear: bool = False, start=None, found=None) -> LearnedPlate | None:
+                long_smear: bool = False, start=None, found=None,
+                omega: float = 0.0) -> LearnedPlate | None:
     """Learn row weights, static field and plate from the ROI images ``regions``; None: failed.
 
     ``start``: (positions, kernels) per frame to start the solver from (NaN: unknown),
@@ -86,7 +87,8 @@ def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction
     (core.tracking.smear.smear_start, ``long_smear``) brings the extents and half-width too.
     ``found``: the mark's positions per frame from another tracker (ROI columns, NaN: lost);
     a frame whose dip centroid does not ``agree`` with it is left out (its strongest dip is
-    something else: a particle).
+    something else: a particle). ``omega``: a sinusoidal motion's (rad/frame), whose paths'
+    kernels the plate is learned and fitted with (``PlateSolver.learn``); 0: quadratic paths.
     """
     cfg = config
     positions, extents = first_positions(regions, polarity, cfg)
@@ -119,7 +121,8 @@ def learn_plate(regions, polarity: str, config: TrackerConfig, exposure_fraction
     solver = PlateSolver(profiles, static, 1.0 if polarity == 'dark' else -1.0)
     reach = half + cfg.pad_px
     rounds = SMEAR_ROUNDS if long_smear else ROUNDS
-    rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED, exposure_fraction)
+    rms = solver.learn(positions, kernels, reach + 8, rounds, SETTLED, exposure_fraction,
+                       omega)
     if solver.plate is None:
         return None
     center = solver.plate.mark_center(reach)

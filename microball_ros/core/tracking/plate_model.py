@@ -34,8 +34,13 @@ class PlateModel:
     """The plate's deficit ``D`` near the mark on a periodic grid, origin at ``size // 2``."""
 
     def __init__(self, size: int, support: float, regularisation: float = 1e-3,
-                 center: int | None = None):
-        """Create an empty model trusted within ``support`` px of its origin."""
+                 center: int | None = None, kappa: float = 0.0):
+        """Create an empty model trusted within ``support`` px of its origin.
+
+        ``kappa``: the frames' paths are a sinusoid's that turns this far (rad) over the
+        exposure (template.path_knots), 0: quadratic; every kernel here is of that shape.
+        """
+        self.kappa = float(kappa)
         self.size = int(size)
         self.center = self.size // 2 if center is None else int(center)
         self.k = 2 * np.pi * np.fft.rfftfreq(self.size)
@@ -53,7 +58,7 @@ class PlateModel:
     def add(self, window, valid, delta, blur, curve, half) -> None:
         """Accumulate one frame's grid-aligned deficit (``delta`` = s - origin column)."""
         taper = tukey(self.size, self.center + delta, half, 8.0) * valid
-        h = kernel_spectrum(self.k, blur, curve) * np.exp(-1j * self.k * delta)
+        h = kernel_spectrum(self.k, blur, curve, self.kappa) * np.exp(-1j * self.k * delta)
         self._num += np.conj(h) * np.fft.rfft(window * taper)
         self._den += np.abs(h) ** 2
         self.frames += 1
@@ -72,7 +77,7 @@ class PlateModel:
     def model(self, delta, blur, curve, slope=False):
         """Return D smeared by (blur, curve) with its origin at ``center + delta`` (grid)."""
         spectrum = self.spectrum * smears(self.k, *self.frequencies(), (blur,), (curve,),
-                                           (delta,))[0]
+                                           (delta,), self.kappa)[0]
         if not slope:
             return np.fft.irfft(spectrum, self.size)
         return (np.fft.irfft(spectrum, self.size),
@@ -191,7 +196,7 @@ class PlateModel:
         jacobian = np.empty((5, count))
         jacobian[0] = 1.0
         for _ in range(iterations):
-            kernel = kernel_parts(self.k, mik, k_safe, blur, curve, delta)
+            kernel = kernel_parts(self.k, mik, k_safe, blur, curve, delta, self.kappa)
             kernel *= self.spectrum
             model = np.fft.irfft(kernel, self.size, axis=1)[:, used]
             m = model[0]
@@ -323,7 +328,7 @@ class PlateModel:
             if active.size == 0:
                 break
             delta, blur, curve = state[:, active]
-            parts = kernels_parts(self.k, mik, k_safe, blur, curve)
+            parts = kernels_parts(self.k, mik, k_safe, blur, curve, self.kappa)
             parts *= (self.spectrum * np.exp(mik * delta[:, None]))[:, None, :]
             model = np.fft.irfft(parts, self.size, axis=2)[:, :, lo:hi]
             w = mask[active]
@@ -391,7 +396,7 @@ class PlateModel:
     def local(self, shift: float, support: float) -> 'PlateModel':
         """Return the part within ``support`` of ``origin + shift`` as a small model there."""
         size = fft_size(max(64, int(math.ceil(2 * support + 32))))
-        local = PlateModel(size, support)
+        local = PlateModel(size, support, kappa=self.kappa)
         index = np.arange(size) - local.center + self.center
         local.values = self.model(-shift, 0.0, 0.0).take(index, mode='wrap') * tukey(
             size, local.center, support, 8.0)

@@ -14,19 +14,21 @@ NEXT_GAIN = 0.3  # match_plate: a next-best match needs at least this gain
 CANDIDATES = 3  # after a loss, the best matches fitted in turn (a particle beside the mark)
 
 
-def search_kernels(motion, blurs: bool, kernel=None) -> list[tuple[float, float]]:
+def search_kernels(motion, blurs: bool, kernel=None,
+                   kappa: float = 0.0) -> list[tuple[float, float]]:
     """Return the (blur, curve) kernels of a search over the whole ROI (after a loss).
 
     ``blurs``: straight paths of ``SEARCH_BLURS``; ``motion`` (a core.tracking.smear
     PeriodicMotion, or None): a long smear's kernels at 36 phases of a period, else (with
     ``blurs``) those at 12 phases if some curve more than ``CURVED`` px (the turning points
-    of a long exposure); ``kernel``: the predicted one, if any.
+    of a long exposure); ``kernel``: the predicted one, if any; ``kappa``: the plate's paths'
+    (template.path_knots), the shape the bank's kernels are given in.
     """
     kernels = [(b, 0.0) for b in SEARCH_BLURS] if blurs else []
     if motion is not None and not blurs:
-        kernels += motion.bank(36)
+        kernels += motion.bank(36, kappa)
     elif motion is not None:
-        bank = motion.bank(12)
+        bank = motion.bank(12, kappa)
         if max(abs(curve) for _, curve in bank) > CURVED:
             kernels += bank
     return kernels + ([kernel] if kernel is not None else [])
@@ -143,7 +145,7 @@ def search_plate(plate: PlateModel, d: np.ndarray, prediction, kernel, motion, s
         kernels = [kernel if kernel is not None else (0.0, 0.0)]
     else:
         lo, hi = 0, d.size
-        kernels = search_kernels(motion, not smeared, kernel)
+        kernels = search_kernels(motion, not smeared, kernel, plate.kappa)
     lo, hi = max(lo, 0), min(hi, d.size)
     if hi <= lo:
         return []

@@ -30,15 +30,21 @@ def motion_kernels(positions: np.ndarray, fraction: float) -> np.ndarray:
 
 
 def motion_curvatures(positions: np.ndarray, fallback: np.ndarray,
-                      fraction: float) -> np.ndarray:
+                      fraction: float, omega: float = 0.0) -> np.ndarray:
     """Return each frame's kernel curvature from the positions of it and its neighbours.
 
     ``(p[n+1] - 2 p[n] + p[n-1]) fraction^2 / 2`` (px): the quadratic through three frames,
     over an exposure of ``fraction`` of the frame period; ``fallback`` where a neighbour is
-    unknown (NaN).
+    unknown (NaN). With a sinusoid's ``omega`` (rad/frame; its path's kernels:
+    template.path_knots), the sinusoid's own: the second difference of exposure averages is
+    ``2 (1 - cos omega) sinc(omega fraction / 2)`` times the acceleration over ``omega^2``
+    (0.85 at five frames per period and 0.7 of the period exposed).
     """
     curvatures = np.array(fallback, dtype=float)
     second = (positions[2:] - 2 * positions[1:-1] + positions[:-2]) * fraction * fraction / 2
+    if omega > 0.0:
+        half = 0.5 * omega * fraction
+        second *= omega * omega / (2.0 * (1.0 - math.cos(omega)) * (math.sin(half) / half))
     known = np.isfinite(second)
     curvatures[1:-1][known] = second[known]
     return curvatures
@@ -99,7 +105,7 @@ class PlateSolver:
         self.rounds = 0  # how many rounds ``learn`` ran
 
     def learn(self, positions, kernels, reach, rounds, settled=0.0,
-              fraction=None) -> list[float]:
+              fraction=None, omega=0.0) -> list[float]:
         """Learn from first positions and kernels (NaN: unknown); return the fits' residuals.
 
         At most ``rounds`` rounds; fewer once the fits move the positions by under
@@ -108,7 +114,9 @@ class PlateSolver:
         ``fraction`` of the frame period, each round's kernels take their curvature from the
         positions (``motion_curvatures``), not from the fits: over a short exposure the
         curvature is hardly seen, and a fitted one skews the kernels, which ``D`` then learns
-        (constant offsets of 0.1-0.2 px on textured plates).
+        (constant offsets of 0.1-0.2 px on textured plates). With a sinusoid's ``omega``
+        (rad/frame) too, the kernels are its path's (template.path_knots: ``kappa`` omega
+        times ``fraction``) and so are the curvatures.
         """
         count, w = self.profiles.shape
         positions = np.array(positions, dtype=float)
@@ -120,7 +128,8 @@ class PlateSolver:
             np.max(np.abs(kernels[ok, 1])))) + 48.0
         center = int(math.ceil(float(positions[ok].max()) + margin))
         size = fft_size(int(math.ceil(center + w - float(positions[ok].min()) + margin)))
-        plate = PlateModel(size, float(size), center=center)
+        kappa = omega * fraction if omega > 0.0 and fraction is not None else 0.0
+        plate = PlateModel(size, float(size), center=center, kappa=kappa)
         values = np.zeros(size)
         rms: list[float] = []
         moved_rms = math.inf
@@ -131,7 +140,7 @@ class PlateSolver:
                 return []
             j0 = np.rint(positions[use]).astype(int) - center
             delta = positions[use] - j0 - center
-            spectra = kernel_spectra(plate.k, kernels[use, 0], kernels[use, 1], delta)
+            spectra = kernel_spectra(plate.k, kernels[use, 0], kernels[use, 1], delta, kappa)
             rows = np.arange(use.size)[:, None]
             cols = np.arange(w)[None, :] - j0[:, None]
             keep = self.keep[use]
@@ -185,7 +194,7 @@ class PlateSolver:
             moved_rms = math.sqrt(float(np.mean(np.square(moves)))) if moves else 0.0
             if fraction is not None:
                 kernels[:, 1] = motion_curvatures(np.where(ok, positions, np.nan),
-                                                  kernels[:, 1], fraction)
+                                                  kernels[:, 1], fraction, omega)
         self.plate, self.kernels, self.positions = plate, kernels, positions
         return rms
 

@@ -19,6 +19,7 @@ five frames per period.
 
 from collections import deque
 from collections.abc import Callable
+import functools
 import math
 import statistics
 import warnings
@@ -29,6 +30,7 @@ from scipy.optimize import minimize_scalar
 from microball_ros.core.tracking.priming import motion_jitter
 from microball_ros.core.tracking.profile import light_level
 from microball_ros.core.tracking.small_linalg import lstsq, solve
+from microball_ros.core.tracking.template import sinusoid_shapes
 
 HARMONICS = 2
 OUTLIER_PX = 3.0  # a centre further than this (and 3.5 robust sigmas) from the fit is left out
@@ -48,6 +50,14 @@ BOXES_FROM = 0.1
 SCALE_FRAMES, SCALE_LEAST, SCALE_FROM, SCALE_RANGE = 15, 2.0, 5, (0.8, 1.25)
 _U = np.linspace(-0.5, 0.5, 33)
 _PATH = np.column_stack([np.ones_like(_U), _U, _U * _U - 1.0 / 12.0])
+
+
+@functools.lru_cache(maxsize=32)
+def _path_design(kappa: float) -> np.ndarray:
+    """Return the path's design over the exposure: 1 and template.path_knots's two shapes."""
+    if kappa == 0.0:
+        return _PATH
+    return np.column_stack([np.ones_like(_U), *sinusoid_shapes(_U, kappa)])
 
 
 def _sinc(z: np.ndarray | float) -> np.ndarray:
@@ -149,19 +159,28 @@ class PeriodicMotion:
         return _design(np.asarray(t, dtype=float), self.omega, self.harmonics) @ \
             self.coefficients
 
-    def kernels(self, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Return the exposure-averaged positions and the (blur, curve) kernels of ``frames``."""
+    @property
+    def turn(self) -> float:
+        """Return how far (rad) the fundamental turns over an exposure (template.path_knots)."""
+        return self.omega * self.fraction
+
+    def kernels(self, frames: np.ndarray,
+                kappa: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Return the exposure-averaged positions and the (blur, curve) kernels of ``frames``.
+
+        The kernels of the paths' least-squares fit over the exposure by a quadratic, or with
+        ``kappa`` by the sinusoid's shapes (template.path_knots).
+        """
         frames = np.asarray(frames, dtype=float)
         times = frames[:, None] + _U[None, :] * self.fraction
         paths = self.path(times.ravel()).reshape(times.shape)
-        fitted = np.linalg.lstsq(_PATH, paths.T, rcond=None)[0]
+        fitted = np.linalg.lstsq(_path_design(float(kappa)), paths.T, rcond=None)[0]
         return fitted[0], np.column_stack([np.abs(fitted[1]), fitted[2]])
 
-
-    def bank(self, count: int = 36) -> list[tuple[float, float]]:
+    def bank(self, count: int = 36, kappa: float = 0.0) -> list[tuple[float, float]]:
         """Return the kernels of ``count`` phases over one period (a search's bank)."""
         frames = np.linspace(0.0, 2.0 * math.pi / self.omega, int(count), endpoint=False)
-        return [(float(b), float(c)) for b, c in self.kernels(frames)[1]]
+        return [(float(b), float(c)) for b, c in self.kernels(frames, kappa)[1]]
 
 
 def _design(t: np.ndarray, omega: float, harmonics: int, fraction: float = 0.0) -> np.ndarray:
@@ -243,12 +262,13 @@ def quadratic_kernel(previous: float, column: float, following: float,
 
 
 def local_kernel(previous: float, column: float, following: float, omega: float,
-                 fraction: float) -> tuple[float, float]:
+                 fraction: float, kappa: float = 0.0) -> tuple[float, float]:
     """Return the (blur, curve) kernel of the frame at ``column`` between its neighbours.
 
     The sinusoid of frequency ``omega`` (rad/frame) through the three exposure-averaged
     positions, one frame apart, gives the path over this frame's exposure (``fraction`` of
-    the frame period); its quadratic fit over the exposure is the kernel.
+    the frame period); its quadratic fit over the exposure is the kernel, or with ``kappa``
+    its fit by the sinusoid's shapes (template.path_knots).
     """
     times = np.array([-1.0, 0.0, 1.0])
     basis = _design(times, omega, 1, fraction)[:, [0, 2, 3]]
@@ -257,7 +277,7 @@ def local_kernel(previous: float, column: float, following: float, omega: float,
         return quadratic_kernel(previous, column, following, fraction)
     u = _U * fraction
     path = coef[0] + coef[1] * np.cos(omega * u) + coef[2] * np.sin(omega * u)
-    fitted = lstsq(_PATH, path)
+    fitted = lstsq(_path_design(float(kappa)), path)
     return abs(float(fitted[1])), float(fitted[2])
 
 
@@ -293,18 +313,18 @@ class BlurScale:
 
 
 def predicted_kernel(prediction, motion: 'PeriodicMotion | None',
-                     fraction: float) -> tuple[float, float] | None:
+                     fraction: float, kappa: float = 0.0) -> tuple[float, float] | None:
     """Return the (blur, curve) kernel a frame's prediction (core.tracking.predict) gives.
 
     Through the previous, predicted and following positions: on ``motion``'s sinusoid when
-    there is one (``local_kernel``), else the quadratic (with the frame before the previous
-    known); None without a prediction.
+    there is one (``local_kernel``, with ``kappa``), else the quadratic (with the frame before
+    the previous known); None without a prediction.
     """
     if prediction is None:
         return None
     if motion is not None:
         return local_kernel(prediction.previous, prediction.column, prediction.following,
-                            motion.omega, fraction)
+                            motion.omega, fraction, kappa)
     if math.isfinite(prediction.before):
         return quadratic_kernel(prediction.previous, prediction.column, prediction.following,
                                 fraction)
