@@ -940,6 +940,32 @@ def test_a_sinusoids_kernels_in_its_own_path_shapes_are_its_velocity_and_acceler
     assert np.allclose(plain[1:-1] / curvatures[1:-1], 0.85, atol=0.01)
 
 
+@pytest.mark.parametrize('fraction', [1.0, 0.5])
+def test_a_plates_kernels_are_the_motions_sinusoid_when_it_turns_far(fraction):
+    """The whole frame period exposed at 30 fps: 0.62 rad of the 2.95 Hz sinusoid per exposure.
+
+    Over ``PATH_TURN`` (0.5 rad) the plate's kernels are the sinusoid's paths (kappa its
+    frequency, fitted to the priming track, times the exposure); half the period, 0.31 rad,
+    keeps the quadratic paths (kappa 0), within 0.001 px of the truth there in a 1-D model.
+    """
+    from microball_ros.core.tracking.plate_priming import PATH_TURN
+
+    spec = SceneSpec(plates=plates(texture=8.0, amplitude=150.0), fps=30.0,
+                     exposure=fraction / 30.0)
+    scene = render_scene(spec, 60, seed=1)
+    tracker = PlateMarkTracker(scene.rois['slider'], TrackerConfig(), 'slider', fraction)
+    tracker.prime(list(scene.frames))
+    assert tracker.plate is not None and tracker.texture >= TEXTURE_SCORE
+    turn = 2 * math.pi * 2.95 / 30.0 * fraction
+    if turn >= PATH_TURN:
+        assert tracker.plate.kappa == pytest.approx(turn, rel=1e-3)
+    else:
+        assert tracker.plate.kappa == 0.0
+    found = [tracker.measure(frame) for frame in scene.frames]
+    x = np.array([m.position_px if m.valid else math.nan for m in found])
+    assert np.all(np.isfinite(x)) and np.max(np.abs(x - scene.truth['slider'])) < 0.5
+
+
 def test_path_range_of_a_kernel():
     """The quadratic path's extent: its ends, and its turning point when inside."""
     assert path_range(100.0, 0.0) == pytest.approx((-50.0, 50.0))

@@ -53,6 +53,12 @@ PLAIN_MARGIN = 0.95
 FOUND_LEAST = 8
 # The light expected at the mark is the median of its light in this many last frames found
 LIGHT_MEMORY = 5
+# A plate's kernels are the paths of the sinusoid fitted to the priming track
+# (template.path_knots) if it turns this far (rad) over an exposure or more, else quadratic
+# paths. In a 1-D model of a textured plate moving +-200 px (stop 41) a quadratic path put the
+# position up to 0.001 px off at 0.31 rad (30 fps, half the period exposed), 0.016 at 0.5,
+# 0.053 at 0.62 (the whole period), 0.30 at 0.87 (15 fps, 0.7 of the period)
+PATH_TURN = 0.5
 
 
 class PlatePriming:
@@ -91,6 +97,7 @@ class PlatePriming:
         self.shadow: ShadowNote | None = None
         self._periodic: PeriodicMotion | None = None  # from a textured plate's priming track
         self._refused = False  # a long smear whose plate could not be learned: all NaN
+        self._path_omega = 0.0  # rad/frame: the sinusoid whose paths the plate's kernels are
         self._clipped: np.ndarray | None = None  # this frame's glint columns
         self._saturates = False  # the plate's own pixels saturated while priming
         self._offset, self._asymmetry = 0.0, math.nan  # px added to positions; plate_rows
@@ -221,6 +228,7 @@ class PlatePriming:
         self.priming_track = (centroid[0], np.array(
             [m.extent_px if m.valid else math.nan for m in centroid[1]]))
         still = is_still(centroid[1], x)
+        self._path_omega = _path_frequency(centroid[0], self.exposure_fraction)
         # Without the pattern fixed in the image (a dot of dust deeper than the mark in their
         # mean was taken for a still mark); a mark still over the priming frames is in that
         # pattern, which the centroid then does not keep
@@ -274,7 +282,7 @@ class PlatePriming:
             self._offset, self._asymmetry, self._offset_sigma = edge_offset(
                 regions if self.flat is None else [r / self.flat for r in regions],
                 self.weights, tracked[0], tracked[2], self._outer,
-                1.0 if polarity == 'dark' else -1.0)
+                1.0 if polarity == 'dark' else -1.0, kappa=self.plate.kappa)
             self._calibrate(tracked)
 
     def _calibrate(self, tracked) -> None:
@@ -368,6 +376,7 @@ class PlatePriming:
         self._guard.forget()
         self._predictor.use_frequency(math.nan, 0.0)
         self._refused = False
+        self._path_omega = 0.0
         self.reset()
 
     def _relearn(self, regions, frames) -> None:
@@ -376,21 +385,27 @@ class PlatePriming:
         The first positions (dip centroids) can be pixels off on a texture; the rounds of the
         solver then stop short of the plate. Measured with the first plate (search and full
         fit), the positions start within a fraction of a pixel, so the second plate is sharp.
-        Kept only if it fits the frames better (median residual).
+        Kept only if it fits the frames better (median residual). Where the centroid found
+        too few priming frames for their motion (a texture), the first plate's track gives
+        the sinusoid whose paths the kernels are (``_omega``).
         """
         positions, _, kernels = self._track_priming(frames, self.measure)
         positions[np.isnan(kernels[:, 0])] = np.nan
         if np.count_nonzero(np.isfinite(positions)) < 8 or self.polarity is None:
             return
+        omega = self._omega
+        if omega == 0.0:
+            omega = _path_frequency(positions, self.exposure_fraction)
         spans = np.array([self._span(kernel[0], kernel) for kernel in kernels])  # NaN: none
         flat = row_flat_field(regions, self.weights, positions, spans)
         learned = learn_plate(regions if flat is None else [r / flat for r in regions],
                               self.polarity, self.config, self.exposure_fraction,
-                              self._motion is not None, (positions, kernels),
-                              omega=self._omega)
+                              self._motion is not None, (positions, kernels), omega=omega)
         if learned is not None and learned.rms <= self._rms:
             learned.flat = flat
             self._use(learned)
+            if self._motion is None:
+                self._path_omega = omega
 
     def _learn(self, regions, start=None, found=None) -> None:
         """Learn the plate (core.tracking.plate_learn); leave ``plate`` None on failure.
@@ -410,13 +425,14 @@ class PlatePriming:
 
     @property
     def _omega(self) -> float:
-        """Return a long smear's motion's frequency (rad/frame), 0 without one.
+        """Return the frequency (rad/frame) whose sinusoid's paths the plate's kernels are.
 
-        Its plate is learned and fitted with the sinusoid's own paths (template.path_knots):
-        a quadratic path put its positions 0.25 px RMS off, noise-free, at 15 fps with 0.7 of
-        the period exposed (stop 41).
+        A long smear's motion's, else the centroid's priming track's if it turns over
+        ``PATH_TURN`` in an exposure; 0: quadratic paths. Learned and fitted with the
+        sinusoid's own paths (template.path_knots): a quadratic path put a long smear's
+        positions 0.25 px RMS off, noise-free, at 15 fps with 0.7 of the period exposed.
         """
-        return 0.0 if self._motion is None else self._motion.omega
+        return self._path_omega if self._motion is None else self._motion.omega
 
     def _use(self, learned: LearnedPlate) -> None:
         """Measure with the plate ``learned`` from now on."""
@@ -433,3 +449,13 @@ class PlatePriming:
     def measure(self, frame: np.ndarray) -> MarkMeasurement:
         """Measure the mark in one frame (PlateMarkTracker.measure)."""
         raise NotImplementedError
+
+
+def _path_frequency(positions: np.ndarray, fraction: float) -> float:
+    """Return the frequency (rad/frame) of the sinusoid fitted to ``positions`` (NaN: none).
+
+    0 unless it fits (smear.fit_motion) and turns ``PATH_TURN`` rad or more over an exposure
+    of ``fraction`` of the frame period: the kernels' paths are then quadratic.
+    """
+    periodic = fit_motion(positions, fraction)
+    return periodic.omega if periodic is not None and periodic.turn >= PATH_TURN else 0.0

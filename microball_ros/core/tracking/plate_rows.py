@@ -79,7 +79,7 @@ class EdgeOffset(NamedTuple):
 
 
 def edge_offset(regions, weights, positions, kernels, extent: float, sign: float,
-                most: float = MAX_MOVE) -> EdgeOffset:
+                most: float = MAX_MOVE, kappa: float = 0.0) -> EdgeOffset:
     """Return how far to move the mark's centre, by its edges (px), and its standard error.
 
     ``weights``: the tracker's row weights (the mark's rows are those above 0); the rest as
@@ -93,13 +93,14 @@ def edge_offset(regions, weights, positions, kernels, extent: float, sign: float
     The standard error: ``jackknife_spread`` and ``texture_spread`` in quadrature (two
     estimates of one error, from the rows and from a texture model: see the module), and the
     part of the verdict's move not applied (edges trusted in part, a move over ``most``).
+    ``kappa``: the kernels' path shape (template.path_knots; 0: quadratic).
     """
     deep = np.flatnonzero(np.asarray(weights) > 0)
     if deep.size == 0:
         return EdgeOffset(0.0, math.nan, math.nan)
     rows = np.arange(max(int(deep[0]) - ROW_MARGIN, 0),
                      min(int(deep[-1]) + ROW_MARGIN + 1, len(weights)))
-    learned = row_plates(regions, rows, positions, kernels, extent, sign)
+    learned = row_plates(regions, rows, positions, kernels, extent, sign, kappa)
     if learned is None:
         return EdgeOffset(0.0, math.nan, math.nan)
     plates, origin = learned
@@ -279,7 +280,7 @@ def sharpness(plates: np.ndarray, weights: np.ndarray, origin: int, extent: floa
 
 
 def row_plates(regions, rows, positions, kernels, extent: float,
-               sign: float) -> tuple[np.ndarray, int] | None:
+               sign: float, kappa: float = 0.0) -> tuple[np.ndarray, int] | None:
     """Return (plates, origin): each row's relative deficit in plate coordinates.
 
     ``regions``: the ROI per frame; ``rows``: the ROI rows to learn; ``positions``: the
@@ -289,8 +290,8 @@ def row_plates(regions, rows, positions, kernels, extent: float,
     a bright one. A pattern fixed in the image (its median over the frames at each pixel,
     the mark's columns left out) and each frame's light (a polynomial of x per row, fitted
     outside the mark) are divided out; then every row's deficit is deconvolved by the
-    frames' motion kernels (least squares over the frames, as ``PlateModel``). None if
-    fewer than 8 frames were measured.
+    frames' motion kernels (least squares over the frames, as ``PlateModel``; paths of
+    ``kappa``'s shape, template.path_knots). None if fewer than 8 frames were measured.
     """
     used = [n for n, p in enumerate(positions) if math.isfinite(p)
             and np.all(np.isfinite(kernels[n]))]
@@ -337,7 +338,8 @@ def row_plates(regions, rows, positions, kernels, extent: float,
         window[:, valid] = deficit[:, index[valid]]
         delta = centers[i] - j0 - origin
         window *= tukey(size, origin + delta, spans[i], 8.0) * valid
-        spectrum = kernel_spectrum(k, *kernels[n]) * np.exp(-1j * k * delta)
+        spectrum = kernel_spectrum(k, kernels[n][0], kernels[n][1], kappa) * np.exp(
+            -1j * k * delta)
         numerator += np.conj(spectrum) * np.fft.rfft(window, axis=1)
         power += np.abs(spectrum) ** 2
     plates = np.fft.irfft(numerator / (power + REGULARISATION * power.max()), size, axis=1)
