@@ -61,15 +61,16 @@ averaged over the exposure. The tracker
    quadratic fit did; the next frame is then predicted as after a loss.
 
 Long smears (core.tracking.smear: a path over ``LONG_BLUR`` of the ROI) start step 1 from a
-periodic motion fitted to the smears, and search a bank of its kernels; their kernels are the
-motion's own paths, a sinusoid's (template.path_knots), not quadratic ones; the plate is kept
-only if its priming track passes ``smear_verdict``, else every frame is NaN. A mark still over the
-priming frames learns no plate: the centroid measures it, or core.tracking.still on a texture;
-one moving less than its own width neither (core.tracking.small). Once such a mark moves, the
-next ``prime_frames`` frames are gathered and it is learned again from them (``_gather``).
-On a plain plate an asymmetric mark (an L, a triangle) is placed at its contrast centroid
-(core.tracking.area_centre: an offset measured over the priming frames; none for a symmetric
-mark).
+periodic motion fitted to the smears, and search a bank of its kernels; the plate is kept only
+if its priming track passes ``smear_verdict``, else every frame is NaN. Their kernels are the
+motion's own paths, a sinusoid's (template.path_knots), not quadratic ones, and so are those
+of any plate whose priming motion turns over ``plate_priming.PATH_TURN`` in an exposure. A
+mark still over the priming frames learns no plate: the centroid measures it, or
+core.tracking.still on a texture; one moving less than its own width neither
+(core.tracking.small). Once such a mark moves, the next ``prime_frames`` frames are gathered
+and it is learned again from them (``_gather``). On a plain plate an asymmetric mark (an L,
+a triangle) is placed at its contrast centroid (core.tracking.area_centre: an offset measured
+over the priming frames; none for a symmetric mark).
 """
 
 import copy

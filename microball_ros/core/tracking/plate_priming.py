@@ -454,8 +454,8 @@ class PlatePriming:
 def _path_frequency(positions: np.ndarray, fraction: float) -> float:
     """Return the frequency (rad/frame) of the sinusoid fitted to ``positions`` (NaN: none).
 
-    0 unless it fits (smear.fit_motion) and turns ``PATH_TURN`` rad or more over an exposure
-    of ``fraction`` of the frame period: the kernels' paths are then quadratic.
+    0, for quadratic paths, unless one fits (smear.fit_motion) and turns ``PATH_TURN`` rad or
+    more over an exposure of ``fraction`` of the frame period.
     """
     periodic = fit_motion(positions, fraction)
     return periodic.omega if periodic is not None and periodic.turn >= PATH_TURN else 0.0
