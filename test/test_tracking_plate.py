@@ -1008,7 +1008,8 @@ def test_long_smears_without_sharp_frames_are_tracked():
     is under 16 px, where the centroid is exact on average. Before stop 41 ``smear_verdict``
     found no frame to check the plate's registration on and refused it: every frame of both
     marks was lost (measured). Now the least smeared frames serve, with a wider bound; the
-    plate's track: 0.26 px RMS, up to 0.71 px off (measured on seed 2).
+    plate's track (seed 2): 0.26 px RMS, up to 0.71 px off, with quadratic paths, and
+    0.12 / 0.14 px, up to 0.39 px, with the sinusoid's (template.path_knots).
     """
     spec = SceneSpec(plates=plates(texture=16.0, amplitude=200.0), fps=15.0,
                      exposure=0.7 / 15.0)
@@ -1021,7 +1022,7 @@ def test_long_smears_without_sharp_frames_are_tracked():
         x = np.array([m.position_px if m.valid else math.nan for m in found])
         assert np.all(np.isfinite(x)), name
         assert np.max(np.abs(x - truth)) <= 1.0, name
-        assert np.sqrt(np.mean((x - truth) ** 2)) <= 0.4, name
+        assert np.sqrt(np.mean((x - truth) ** 2)) <= 0.2, name
 
 
 def test_smear_verdict_checks_registration_on_the_least_smeared_frames():
