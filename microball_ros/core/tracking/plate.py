@@ -16,7 +16,9 @@ as their standard errors allow), on the frames where the two do not disagree gro
 (``agreeing``: a particle passing pulls one); its positions are offset by the mean difference
 of the two tracks there (the centroid is exact on average). Kept, it alone measures every
 frame, and a frame whose rows depart from the mark's own (core.tracking.rows_guard) is 'mark
-partly hidden'. Else every frame is the centroid's.
+partly hidden'. Else every frame is the centroid's, unless the centroid scatters about the
+motion far over its standard errors while the plate does not (``priming.pulled``: a texture
+too faint to score pulls it, up to 2.3 px): the plate is then learned as a textured one.
 
 On a textured plate the texture moves with the mark, so near the mark the plate's relative
 deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
@@ -85,7 +87,6 @@ from microball_ros.core.tracking.image import roi_region
 from microball_ros.core.tracking.plate_model import grid_window
 from microball_ros.core.tracking.plate_priming import PlatePriming
 from microball_ros.core.tracking.plate_search import plate_level, search_plate
-from microball_ros.core.tracking.priming import TEXTURE_SCORE
 from microball_ros.core.tracking.profile import (
     LIGHT_FLANK,
     glint_columns,
@@ -285,7 +286,7 @@ class PlateMarkTracker(PlatePriming):
         fit = plate.fit_frame(window, valid, start - j0 - plate.center, blur, curve, reach + 8.0,
                               tolerance * noise,
                               RESTART_BLURS if restart else RESTART_BLURS[:1],
-                              self._rms if self.texture < TEXTURE_SCORE else None)
+                              None if self.on_texture else self._rms)
         if fit is None:
             return ('no match', 0.0, math.nan)
         delta, blur, curve, gain, _, rms, sigma, sigma_gain = fit
@@ -296,7 +297,7 @@ class PlateMarkTracker(PlatePriming):
         # searched without a prediction on a plain plate (nothing else there to match), and
         # one found by a long kernel (its match is as long, wherever the fit ends).
         smeared = self._motion or self._periodic or (gated is None
-                                                     and self.texture < TEXTURE_SCORE)
+                                                     and not self.on_texture)
         moved = 4.0 + SMEAR_MOVE * max(blur, found[1]) if smeared else 4.0
         if abs(position - start) > moved or not math.isfinite(position):
             return ('no match', 0.0, peak)

@@ -59,6 +59,17 @@ class LearnedPlate:
     rms: float
     flat: np.ndarray | None = None
 
+    @property
+    def misfit(self) -> float:
+        """Return ``rms`` over the row weights' norm: the residual per pixel, to compare plates.
+
+        A profile's noise is the pixels' times the weights' norm, so plates learned with
+        other row weights are compared by this, not by ``rms`` (weights on fewer rows had a
+        larger ``rms`` but fitted better: 'textured_full''s stator, 0.0035 against 0.0035 by
+        ``rms``, 0.0156 against 0.0159 by this, 0.140 px RMS against 0.169).
+        """
+        return self.rms / max(float(np.linalg.norm(self.weights)), 1e-12)
+
 
 def agree(positions: np.ndarray, extents: np.ndarray, found: np.ndarray) -> np.ndarray:
     """Return the frames whose ``positions`` agree with the mark ``found`` (NaN: lost).

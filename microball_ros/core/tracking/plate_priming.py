@@ -26,6 +26,7 @@ from microball_ros.core.tracking.predict import MotionPredictor
 from microball_ros.core.tracking.priming import (
     TEXTURE_SCORE,
     plain_verdict,
+    pulled,
     row_flat_field,
     scatter_scale,
     texture_score,
@@ -74,6 +75,7 @@ class PlatePriming:
         self._fallback = CentroidMarkTracker(self.roi, self.config, name, exposure_fraction)
         self.plate: PlateModel | None = None
         self.texture = 0.0
+        self._pulled = False  # a texture too faint to score pulls the centroid: ``on_texture``
         # The centroid's priming track: ROI columns and smeared lengths (NaN: not found)
         self.priming_track: tuple[np.ndarray, np.ndarray] | None = None
         self.weights: np.ndarray | None = None
@@ -83,6 +85,7 @@ class PlatePriming:
         self._half = self._outer = self._whole = 8.0  # px: its half-width, its reach in D
         self._full: PlateModel | None = None
         self._shift, self._rms = 0.0, 1.0  # D's origin in the whole plate; priming's residual
+        self._misfit = math.inf  # the plate's LearnedPlate.misfit, to compare another with
         self._kernel: tuple[float, float] | None = None  # the last measured (blur, curve)
         self.priming = False  # the priming frames are being tracked (``_track_priming``)
         self._predictor = MotionPredictor()
@@ -126,7 +129,16 @@ class PlatePriming:
     @property
     def textured(self) -> bool:
         """Return True once priming found a textured plate and learned it."""
-        return self.plate is not None and self.texture >= TEXTURE_SCORE
+        return self.plate is not None and self.on_texture
+
+    @property
+    def on_texture(self) -> bool:
+        """Return True if the plate is taken as textured.
+
+        By its ``texture`` score, or because a texture too faint to score pulls the centroid
+        (``_prime_plain``).
+        """
+        return self.texture >= TEXTURE_SCORE or self._pulled
 
     @property
     def learned(self) -> dict:
@@ -171,7 +183,7 @@ class PlatePriming:
             return self._still.centre_sigma
         if self.plate is not None and self.weights is not None:
             return with_centre(self._offset_sigma, self._area[1])
-        return math.nan if self.texture >= TEXTURE_SCORE else self._area[1]
+        return math.nan if self.on_texture else self._area[1]
 
     def reset(self) -> None:
         """Forget the track (what was learned is kept)."""
@@ -196,6 +208,7 @@ class PlatePriming:
         frames = list(frames)
         self._forget()
         self.texture, self.jitter, self._area = 0.0, None, (0.0, 0.0)
+        self._pulled = False
         self.priming_track = None
         self._fallback.prime(frames)
         # The centroid's rows learned while priming serve it when it measures the frames; the
@@ -256,7 +269,7 @@ class PlatePriming:
         self._saturates = self.weights is not None and any(
             glint_columns(roi_region(frame, self.roi, self.name), self.weights > 0,
                           self.config.saturation_level) is not None for frame in frames)
-        if self.texture < TEXTURE_SCORE and self._still is None and not self._refused:
+        if not self.on_texture and self._still is None and not self._refused:
             # core.tracking.area_centre (a still mark's own module puts it: on a texture)
             self._area = area_offset(regions, centroid[0], np.array(
                 [m.extent_px for m in centroid[1]]), self.polarity, int(self.config.pad_px))
@@ -293,7 +306,7 @@ class PlatePriming:
         """
         positions, found, _ = tracked
         self._gains.learn_spread()  # from the plate's last pass over the priming frames
-        if self.texture >= TEXTURE_SCORE and self._motion is None:  # its kernels, from now
+        if self.on_texture and self._motion is None:  # its kernels, from now
             self._periodic = fit_motion(positions, self.exposure_fraction)
         motion = self._motion or self._periodic
         if motion is not None:  # the first frames' search gated too (core.tracking.predict)
@@ -344,7 +357,9 @@ class PlatePriming:
 
         ``tracked``: the centroid's ``_track_priming``. The plate tracks the priming frames
         too, and is kept and offset as ``priming.plain_verdict`` says (``PLAIN_MARGIN``). The
-        mark's rows and row weights are learned from the plate's track (``mark_rows``).
+        mark's rows and row weights are learned from the plate's track (``mark_rows``). When
+        the centroid is ``priming.pulled`` and the plate is not, the plate is learned again
+        as a textured one (``on_texture``).
         """
         centroid, reference, _ = tracked
         self._learn(regions, found=centroid)
@@ -357,6 +372,16 @@ class PlatePriming:
         self._guard.learn(self.roi[3])
         keep, self.jitter, offset = plain_verdict(centroid, reference, tracked[0], tracked[1],
                                                   PLAIN_MARGIN)
+        polarity = self.polarity
+        if polarity is not None and pulled(self.jitter, [
+                np.array([m.sigma_px if m.valid else math.nan for m in found])
+                for found in (reference, tracked[1])]):
+            # A texture too faint to score pulls the centroid (2.3 px off at a whole-frame
+            # exposure, the plate's jitter a sixth of its): learned as a textured plate
+            self._forget()
+            self._pulled = True
+            self._prime_textured(regions, frames, polarity)
+            return
         if not keep:
             self._forget()
             return
@@ -369,6 +394,7 @@ class PlatePriming:
         self.weights = self.static = self.flat = None
         self._half = self._outer = self._whole = 8.0
         self._shift, self._rms, self._sigma_scale = 0.0, 1.0, 1.0
+        self._misfit = math.inf
         self._offset, self._asymmetry, self._still = 0.0, math.nan, None
         self._offset_sigma = 0.0
         self._still_at = None
@@ -385,9 +411,10 @@ class PlatePriming:
         The first positions (dip centroids) can be pixels off on a texture; the rounds of the
         solver then stop short of the plate. Measured with the first plate (search and full
         fit), the positions start within a fraction of a pixel, so the second plate is sharp.
-        Kept only if it fits the frames better (median residual). Where the centroid found
-        too few priming frames for their motion (a texture), the first plate's track gives
-        the sinusoid whose paths the kernels are (``_omega``).
+        Kept only if it fits the frames better (``LearnedPlate.misfit``: the median residual
+        per pixel). Where the centroid found too few priming frames for their motion (a
+        texture), the first plate's track gives the sinusoid whose paths the kernels are
+        (``_omega``).
         """
         positions, _, kernels = self._track_priming(frames, self.measure)
         positions[np.isnan(kernels[:, 0])] = np.nan
@@ -401,7 +428,7 @@ class PlatePriming:
         learned = learn_plate(regions if flat is None else [r / flat for r in regions],
                               self.polarity, self.config, self.exposure_fraction,
                               self._motion is not None, (positions, kernels), omega=omega)
-        if learned is not None and learned.rms <= self._rms:
+        if learned is not None and learned.misfit <= self._misfit:
             learned.flat = flat
             self._use(learned)
             if self._motion is None:
@@ -439,7 +466,7 @@ class PlatePriming:
         self.plate, self._full, self._shift = learned.plate, learned.full, learned.shift
         self._half, self._outer, self._whole = learned.half, learned.outer, learned.whole
         self.weights, self.static, self.flat = learned.weights, learned.static, learned.flat
-        self._rms = learned.rms
+        self._rms, self._misfit = learned.rms, learned.misfit
 
     def _span(self, blur, kernel):
         """Return the width (px) the smeared mark can cover: the light is fitted outside it."""

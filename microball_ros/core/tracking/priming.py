@@ -32,6 +32,12 @@ SHAPE_FRAMES = 5  # deep_rows: the least smeared frames it looks at
 # the ROI) 12 and more
 MAX_SIGMA_SCALE = 4.0
 MISFIT = 2.0  # steadier: a motion fit missing by more than this many standard errors
+# pulled: a track scattering about the motion by over PULLED times its standard errors while
+# the other is within STEADY times its own. Over 60 priming frames the ratio is about 1 +- 0.1
+# where the errors are the noise's; on the plain plates of the bench and the two blind sets
+# kept here the centroid's was 0.69-1.21 and the plate's 0.68-1.32 (a window pattern's 1.8-3.3,
+# a vibration's or a motion no sinusoid fits 6-156, both tracks alike)
+PULLED, STEADY = 1.5, 1.4
 # agreeing: frames where two tracks differ by DISAGREE robust spreads of their difference
 # (at most ODD of the frames: else they are not told from the rest) are left out
 DISAGREE, ODD = 6.0, 0.25
@@ -270,6 +276,22 @@ def plain_verdict(centroid: np.ndarray, reference: list, plate: np.ndarray, foun
     sigma = (float(np.std(difference, ddof=1) / math.sqrt(difference.size))
              if difference.size > 1 else math.nan)
     return True, jitters, (float(np.mean(difference)), sigma)
+
+
+def pulled(jitters: tuple[float, float], sigmas: list[np.ndarray]) -> bool:
+    """Return whether something pulls the first of two tracks of the same frames alone.
+
+    ``jitters``: their ``motion_jitter``; ``sigmas``: their standard errors per frame (NaN:
+    none). Pulled: the first scatters about the motion by over ``PULLED`` times its standard
+    errors (RMS) while the second is within ``STEADY`` times its own, so the motion fit misses
+    nothing common to both (a slider that sticks and slips, a vibration: both far over). A
+    plain plate's centroid is pulled so by a texture too faint to score (0.36 px about the
+    motion for standard errors of 0.05; a learned plate's 0.057). A fixed window pattern the
+    background leaves scatters the plate too (1.8-2.2 times).
+    """
+    rms = [math.sqrt(float(np.nanmean(np.square(np.asarray(s, dtype=float)))))
+           if np.any(np.isfinite(s)) else math.nan for s in sigmas]
+    return bool(jitters[0] > PULLED * rms[0] and jitters[1] <= STEADY * rms[1])
 
 
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
