@@ -18,7 +18,12 @@ from tracking_scenes import render as render_scene
 from microball_ros.core.tracking import TrackerConfig
 from microball_ros.core.tracking.plate import PlateMarkTracker
 from microball_ros.core.tracking.plate_learn import learn_plate
-from microball_ros.core.tracking.priming import TEXTURE_SCORE, motion_jitter, pulled
+from microball_ros.core.tracking.priming import (
+    TEXTURE_SCORE,
+    motion_jitter,
+    pulled,
+    unexplained,
+)
 
 
 def test_pulled_is_a_scatter_about_the_motion_the_other_track_does_not_share():
@@ -98,3 +103,45 @@ def test_a_plates_misfit_is_its_residual_per_pixel_whatever_its_row_weights(text
         misfits.append(learned.misfit)
     assert rms[1] > 1.6 * rms[0]
     assert misfits[1] == pytest.approx(misfits[0], rel=0.05)
+
+
+def test_unexplained_is_the_difference_the_standard_errors_leave_out():
+    """A plate's errors 0.05 px, the centroid's the plate's and 0.062 px of its own (0.08 px).
+
+    Were both as their standard errors say, the tracks would differ by sqrt(0.08^2 - 0.05^2)
+    and nothing is left out; a pull on the centroid following the motion (0.08 px times a
+    sine of its phase, 0.057 px RMS) is what is left out.
+    """
+    n = np.arange(60.0)
+    rng = np.random.default_rng(7)
+    phase = 0.37 * n
+    plate = 300 - 80 * np.cos(phase) + rng.normal(0, 0.05, n.size)
+    centroid = plate + rng.normal(0, math.sqrt(0.08 ** 2 - 0.05 ** 2), n.size)
+    sigmas = [np.full(n.size, 0.08), np.full(n.size, 0.05)]
+    assert unexplained([centroid, plate], sigmas) < 0.03
+    pulled_centroid = centroid + 0.08 * np.sin(2 * phase + 0.5)
+    assert unexplained([pulled_centroid, plate], sigmas) == pytest.approx(0.057, abs=0.02)
+
+
+def test_a_centroid_pulled_along_the_motion_carries_the_pull_in_its_standard_errors():
+    """Bars on a 4 DN texture at a whole-frame exposure (seed 3): the slider's plate scores 0.02.
+
+    The plate learned on it is steadier than the centroid but the two disagree by more than
+    their standard errors allow, so the centroid measures every frame (0.085 px RMS). Its
+    pull follows the motion, so it hides in the scatter its standard errors are scaled to:
+    82 % of its errors were within two of them (measured); with the disagreement left out of
+    both added (``unexplained``, 0.057 px) 98 %.
+    """
+    spec = SceneSpec(plates=plates(texture=4.0, amplitude=200.0), fps=30.0,
+                     exposure=1.0 / 30.0)
+    scene = render_scene(spec, 60, seed=3)
+    tracker = PlateMarkTracker(scene.rois['slider'], TrackerConfig(), 'slider', 1.0)
+    tracker.prime(list(scene.frames))
+    assert tracker.plate is None and not tracker.on_texture
+    found = [tracker.measure(frame) for frame in scene.frames]
+    x = np.array([m.position_px if m.valid else math.nan for m in found])
+    sigma = np.array([m.sigma_px if m.valid else math.nan for m in found])
+    error = x - scene.truth['slider']
+    assert np.all(np.isfinite(x))
+    assert np.sqrt(np.mean(error ** 2)) <= 0.12
+    assert np.mean(np.abs(error) <= 2 * sigma) >= 0.9

@@ -19,6 +19,9 @@ frame, and a frame whose rows depart from the mark's own (core.tracking.rows_gua
 partly hidden'. Else every frame is the centroid's, unless the centroid scatters about the
 motion far over its standard errors while the plate does not (``priming.pulled``: a texture
 too faint to score pulls it, up to 2.3 px): the plate is then learned as a textured one.
+A plate refused though steadier than the centroid leaves it, in its standard errors, what
+the two tracks' difference holds beyond theirs (``priming.unexplained``: a pull that follows
+the motion, which the scatter about it does not show).
 
 On a textured plate the texture moves with the mark, so near the mark the plate's relative
 deficit ``D(u)`` (mark and texture, plate coordinates) is the same in every frame, smeared by
@@ -176,8 +179,9 @@ class PlateMarkTracker(PlatePriming):
             return self._gather(frame)
         if plate is None or self.weights is None:
             found = self._fallback.measure(frame)
-            if found.valid and self._sigma_scale != 1.0:
-                found = dataclasses.replace(found, sigma_px=found.sigma_px * self._sigma_scale)
+            if found.valid and (self._sigma_scale != 1.0 or self._unexplained):
+                found = dataclasses.replace(found, sigma_px=math.hypot(
+                    found.sigma_px * self._sigma_scale, self._unexplained))
             if self._still_at is not None and not self._moved and found.valid and abs(
                     found.position_px - self.roi[0] - self._still_at) > REACH:
                 self._start_gathering(frame)  # a still mark on a plain plate moves

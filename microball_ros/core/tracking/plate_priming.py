@@ -30,6 +30,7 @@ from microball_ros.core.tracking.priming import (
     row_flat_field,
     scatter_scale,
     texture_score,
+    unexplained,
 )
 from microball_ros.core.tracking.profile import glint_columns
 from microball_ros.core.tracking.results import MarkMeasurement, with_centre
@@ -112,6 +113,7 @@ class PlatePriming:
         self._gathered: list | None = None  # frames since it moved, to learn it again from
         self.revised: list[MarkMeasurement] = []  # ``_gather``'s frames measured again
         self._sigma_scale = 1.0  # the standard errors times this (``scatter_scale``)
+        self._unexplained = 0.0  # px added to them in quadrature (``_prime_plain``)
         # An asymmetric mark on a plain plate: px to its contrast centroid, standard error
         self._area: tuple[float, float] = (0.0, 0.0)
         self._guard = RowsGuard(int(self.config.pad_px))  # plain plate: the mark's rows
@@ -359,7 +361,9 @@ class PlatePriming:
         too, and is kept and offset as ``priming.plain_verdict`` says (``PLAIN_MARGIN``). The
         mark's rows and row weights are learned from the plate's track (``mark_rows``). When
         the centroid is ``priming.pulled`` and the plate is not, the plate is learned again
-        as a textured one (``on_texture``).
+        as a textured one (``on_texture``). A plate refused though steadier leaves the
+        centroid the part of the two tracks' difference their standard errors do not explain
+        (``priming.unexplained``), added to its standard errors.
         """
         centroid, reference, _ = tracked
         self._learn(regions, found=centroid)
@@ -370,12 +374,13 @@ class PlatePriming:
         self._guard.start_log()
         tracked = self._track_priming(frames, self.measure)
         self._guard.learn(self.roi[3])
-        keep, self.jitter, offset = plain_verdict(centroid, reference, tracked[0], tracked[1],
-                                                  PLAIN_MARGIN)
+        keep, jitters, offset = plain_verdict(centroid, reference, tracked[0], tracked[1],
+                                              PLAIN_MARGIN)
+        self.jitter = jitters
         polarity = self.polarity
-        if polarity is not None and pulled(self.jitter, [
-                np.array([m.sigma_px if m.valid else math.nan for m in found])
-                for found in (reference, tracked[1])]):
+        sigmas = [np.array([m.sigma_px if m.valid else math.nan for m in found])
+                  for found in (reference, tracked[1])]
+        if polarity is not None and pulled(jitters, sigmas):
             # A texture too faint to score pulls the centroid (2.3 px off at a whole-frame
             # exposure, the plate's jitter a sixth of its): learned as a textured plate
             self._forget()
@@ -383,7 +388,12 @@ class PlatePriming:
             self._prime_textured(regions, frames, polarity)
             return
         if not keep:
+            # Refused though steadier: the two disagree by more than their errors allow, and
+            # the centroid that measures every frame carries what they leave out
+            spread = (unexplained([centroid, tracked[0]], sigmas)
+                      if jitters[1] < PLAIN_MARGIN * jitters[0] else 0.0)
             self._forget()
+            self._unexplained = spread
             return
         self._offset, self._offset_sigma = offset
         self._calibrate(tracked)
@@ -394,7 +404,7 @@ class PlatePriming:
         self.weights = self.static = self.flat = None
         self._half = self._outer = self._whole = 8.0
         self._shift, self._rms, self._sigma_scale = 0.0, 1.0, 1.0
-        self._misfit = math.inf
+        self._misfit, self._unexplained = math.inf, 0.0
         self._offset, self._asymmetry, self._still = 0.0, math.nan, None
         self._offset_sigma = 0.0
         self._still_at = None

@@ -294,6 +294,27 @@ def pulled(jitters: tuple[float, float], sigmas: list[np.ndarray]) -> bool:
     return bool(jitters[0] > PULLED * rms[0] and jitters[1] <= STEADY * rms[1])
 
 
+def unexplained(tracks: list[np.ndarray], sigmas: list[np.ndarray]) -> float:
+    """Return the spread (px) of two tracks' difference that their standard errors leave out.
+
+    ``tracks``: the centroid's and a plate's positions over the same frames (NaN: none),
+    ``sigmas`` their standard errors. Were the plate efficient, the variance of the difference
+    would be the centroid's less the plate's (``steadier``); what is over that, on the frames
+    where the two agree (``agreeing``), is an error one of them does not report: a texture
+    too faint to score whose pull on the centroid follows the motion (0.03-0.12 px, its
+    errors 62-93 % within two standard errors), or the plate's bias growing with the blur.
+    0 with fewer than 8 such frames.
+    """
+    both = agreeing(tracks)
+    if np.count_nonzero(both) < 8:
+        return 0.0
+    rms = [math.sqrt(float(np.mean(np.square(np.asarray(s, dtype=float)[both]))))
+           for s in sigmas]
+    apart = float(np.var(tracks[0][both] - tracks[1][both]))
+    excess = apart - (rms[0] ** 2 - rms[1] ** 2)
+    return math.sqrt(excess) if excess > 0 else 0.0
+
+
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],
                       threshold: float = TEXTURE_SCORE) -> bool:
     """Return True if the plate around the mark carries a texture (``texture_score``).
