@@ -134,8 +134,8 @@ class Tracker:
     def _smear_evidence(self, name: str, mark: Any, grey: list[np.ndarray]):
         """Return a plain plate's mark's evidence of an encoding gamma (None: none)."""
         track, rows = getattr(mark, 'priming_track', None), getattr(mark, 'mark_rows', None)
-        if track is None or rows is None or mark.polarity is None or (
-                getattr(mark, 'texture', 0.0) >= TEXTURE_SCORE):
+        textured = getattr(mark, 'on_texture', getattr(mark, 'texture', 0.0) >= TEXTURE_SCORE)
+        if track is None or rows is None or mark.polarity is None or textured:
             return None
         saturation = saturation_level(grey[0].dtype, self.config.saturation_level)
         regions = [roi_region(frame, mark.roi, name)[rows[0]:rows[1]] for frame in grey]
