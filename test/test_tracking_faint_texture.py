@@ -29,10 +29,10 @@ from microball_ros.core.tracking.priming import (
 def test_pulled_is_a_scatter_about_the_motion_the_other_track_does_not_share():
     """Two tracks of the same frames, standard errors 0.05 px each.
 
-    A texture pulls the first by 0.35 px as a function of where the mark is (not of the
-    motion's phase alone, so the periodic fit cannot take it up): pulled. Noise alone, or a
-    slider that sticks and slips (the fit misses the motion, in both tracks): not pulled;
-    nor is the first when the second is the one pulled.
+    A texture pulls the first by 0.35 px as a function of where the mark is (in the motion's
+    phase, harmonics far beyond the periodic fit's four, so it cannot take it up): pulled.
+    Noise alone, or a slider that sticks and slips (the fit misses the motion, in both
+    tracks): not pulled; nor is the first when the second is the one pulled.
     """
     n = np.arange(60.0)
     rng = np.random.default_rng(5)
