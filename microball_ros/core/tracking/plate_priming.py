@@ -489,9 +489,9 @@ class PlatePriming:
 
 
 def _path_frequency(positions: np.ndarray, fraction: float) -> float:
-    """Return the frequency (rad/frame) of the sinusoid fitted to ``positions`` (NaN: none).
+    """Return the frequency (rad/frame) of the sinusoid fitted to ``positions``.
 
-    0, for quadratic paths, unless one fits (smear.fit_motion) and turns ``PATH_TURN`` rad or
+    0 (quadratic paths) unless one fits (smear.fit_motion) and turns ``PATH_TURN`` rad or
     more over an exposure of ``fraction`` of the frame period.
     """
     periodic = fit_motion(positions, fraction)

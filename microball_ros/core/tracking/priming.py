@@ -239,8 +239,7 @@ def steadier(tracks: list[np.ndarray], sigmas: list[np.ndarray], margin: float,
         both &= ~(s > DISTURBED_SIGMA * float(np.nanmedian(s[both])))
     if np.count_nonzero(both) < 8:
         return False, jitters
-    rms = [math.sqrt(float(np.mean(np.square(np.asarray(s, dtype=float)[both]))))
-           for s in sigmas]
+    rms = _rms(sigmas, both)
     if jitter[1] < margin * jitter[0]:
         better = True
     elif jitter[0] > misfit * rms[0]:
@@ -289,8 +288,7 @@ def pulled(jitters: tuple[float, float], sigmas: list[np.ndarray]) -> bool:
     motion for standard errors of 0.05; a learned plate's 0.057). A fixed window pattern the
     background leaves scatters the plate too (1.8-2.2 times).
     """
-    rms = [math.sqrt(float(np.nanmean(np.square(np.asarray(s, dtype=float)))))
-           if np.any(np.isfinite(s)) else math.nan for s in sigmas]
+    rms = _rms(sigmas)
     return bool(jitters[0] > PULLED * rms[0] and jitters[1] <= STEADY * rms[1])
 
 
@@ -308,11 +306,20 @@ def unexplained(tracks: list[np.ndarray], sigmas: list[np.ndarray]) -> float:
     both = agreeing(tracks)
     if np.count_nonzero(both) < 8:
         return 0.0
-    rms = [math.sqrt(float(np.mean(np.square(np.asarray(s, dtype=float)[both]))))
-           for s in sigmas]
+    rms = _rms(sigmas, both)
     apart = float(np.var(tracks[0][both] - tracks[1][both]))
     excess = apart - (rms[0] ** 2 - rms[1] ** 2)
     return math.sqrt(excess) if excess > 0 else 0.0
+
+
+def _rms(sigmas: list[np.ndarray], frames: np.ndarray | None = None) -> list[float]:
+    """Return each track's RMS standard error, over ``frames`` (a mask) or all it has."""
+    out = []
+    for s in sigmas:
+        s = np.asarray(s, dtype=float)
+        s = s[frames] if frames is not None else s[np.isfinite(s)]
+        out.append(math.sqrt(float(np.mean(np.square(s)))) if s.size else math.nan)
+    return out
 
 
 def plate_is_textured(regions: list[np.ndarray], marks: list[tuple[float, float]],

@@ -39,7 +39,6 @@ from microball_ros.core.tracking.image import (
 )
 from microball_ros.core.tracking.mark import MarkTracker
 from microball_ros.core.tracking.mosaic import is_mosaic, unmosaic
-from microball_ros.core.tracking.priming import TEXTURE_SCORE
 from microball_ros.core.tracking.profile import saturation_level
 from microball_ros.core.tracking.results import MarkMeasurement, TrackedFrame, TrackResult
 from microball_ros.core.tracking.shade import BlackLevel, Shade, ShadowNote, gain_slack
@@ -134,8 +133,8 @@ class Tracker:
     def _smear_evidence(self, name: str, mark: Any, grey: list[np.ndarray]):
         """Return a plain plate's mark's evidence of an encoding gamma (None: none)."""
         track, rows = getattr(mark, 'priming_track', None), getattr(mark, 'mark_rows', None)
-        textured = getattr(mark, 'on_texture', getattr(mark, 'texture', 0.0) >= TEXTURE_SCORE)
-        if track is None or rows is None or mark.polarity is None or textured:
+        if track is None or rows is None or mark.polarity is None or getattr(
+                mark, 'on_texture', False):
             return None
         saturation = saturation_level(grey[0].dtype, self.config.saturation_level)
         regions = [roi_region(frame, mark.roi, name)[rows[0]:rows[1]] for frame in grey]
