@@ -27,6 +27,7 @@ from microball_ros.core.tracking.reach import Reach
 from microball_ros.core.tracking.results import MarkMeasurement
 
 VOTES, VOTE_SHARE = 3, 0.8  # voted_polarity: clear guesses needed, and the share agreeing
+MIDDLE_FROM = 9  # voted_polarity: ROI rows from which its middle third votes first
 ROW_FRAMES = 20  # frames the mark is found in before its rows are fixed (rows_guard)
 # A smear whose extent (against the learned plate) exceeds LONG_SMEAR of the ROI's width is
 # measured against the plate (core.tracking.centroid).
@@ -44,7 +45,24 @@ def voted_polarity(regions) -> str | None:
     rectangle at 15 frames/s smeared over 0.7 of the period, 31 of the 60 priming frames guessed
     dark and none bright, but a frame guessing nothing was measured both ways against the
     static background, whose median the smears had darkened, and taken for a bright mark.
+
+    An ROI is drawn about the mark's path, so the mark fills its middle rows and a texture
+    may fill the rest: the middle third of the rows (ROIs of ``MIDDLE_FROM`` rows or more)
+    votes first, the whole ROI when those rows give no verdict (a mark off the ROI's middle).
+    A cross 13 % deep on a 5 px grain of 4.7 % gave 1 clear guess in 60 frames over the whole
+    ROI, and was taken for a bright mark; in its middle rows 56 of 60 guessed dark.
     """
+    regions = list(regions)
+    if regions and len(regions[0]) >= MIDDLE_FROM:
+        height = len(regions[0])
+        middle = _vote([region[height // 3:height - height // 3] for region in regions])
+        if middle is not None:
+            return middle
+    return _vote(regions)
+
+
+def _vote(regions) -> str | None:
+    """Return ``voted_polarity``'s verdict on ``regions`` as they are (None: no verdict)."""
     guesses = [polarity_of(column_profile(region)) or polarity_of_pixels(region)
                for region in regions]
     dark, bright = guesses.count('dark'), guesses.count('bright')
