@@ -75,7 +75,7 @@ def test_a_faint_texture_moving_with_a_symmetric_mark_is_no_asymmetry(seed):
     # fps with 0.94 of the period exposed: the contrast centroid is pulled the same way in
     # every frame, by 0.09-0.24 px for these seeds (measured), and was taken for an
     # asymmetric mark's offset. Widening the window moves it (the texture's lever arm):
-    # no offset. (Seed 1 still gives 0.21 +- 0.03 px: the move is within its noise there.)
+    # no offset. (Seed 1 still gives 0.21 +- 0.03 px, measured: not fixed.)
     slider = plates(shape='bar', contrast=-36.0, width=22.0, height=22.0, texture=2.2,
                     amplitude=90.0)['slider']
     scene = render(SceneSpec(plates={'slider': slider}, fps=60.0, exposure=0.94 / 60.0), 60,
